@@ -1,0 +1,56 @@
+"""lwbench: a benchmark for LiDAR point-cloud reduction codecs.
+
+This module is the public API. Plugins (including the built-in ones under ``plugins/``)
+import only from here.
+"""
+
+from lwbench.codec import (
+    BUDGET_PARAMS,
+    Codec,
+    CodecKind,
+    RepresentationCodec,
+    SelectionCodec,
+    SelectionError,
+)
+from lwbench.dataset import Dataset
+from lwbench.device import DEVICE_PARAM, resolve_device
+from lwbench.hookspecs import hookimpl
+from lwbench.metric import Evaluation, FrameMetric, SequenceEvaluation, SequenceMetric
+from lwbench.payload import Payload, PayloadError
+from lwbench.points import POINT_ENCODINGS, pack_points, unpack_points
+from lwbench.sensor import SENSOR_PRESETS, RangeImage, SensorModel, get_sensor
+from lwbench.types import Frame, InvalidFrameError, LwbenchError, Param, ParameterError
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "BUDGET_PARAMS",
+    "Codec",
+    "CodecKind",
+    "DEVICE_PARAM",
+    "Dataset",
+    "Evaluation",
+    "Frame",
+    "FrameMetric",
+    "InvalidFrameError",
+    "LwbenchError",
+    "POINT_ENCODINGS",
+    "Param",
+    "ParameterError",
+    "Payload",
+    "PayloadError",
+    "RangeImage",
+    "RepresentationCodec",
+    "SENSOR_PRESETS",
+    "SelectionCodec",
+    "SelectionError",
+    "SensorModel",
+    "SequenceEvaluation",
+    "SequenceMetric",
+    "get_sensor",
+    "hookimpl",
+    "pack_points",
+    "resolve_device",
+    "unpack_points",
+    "__version__",
+]

@@ -1,0 +1,163 @@
+"""The codec interface: one ABC, two kinds, one leaderboard.
+
+- A *representation* codec (VSGP, GMM, Draco, range image) implements ``encode`` and ``decode``.
+- A *selection* codec (PocoNet, keypoints, random) implements only ``select``; the base class
+  serializes the kept points with the shared point serializer, so bytes are comparable.
+
+Both kinds expose ``encode(frame) -> bytes`` and ``decode(bytes) -> points``; the runner decodes
+with a *fresh* instance so that nothing but the bytes crosses from encoder to decoder.
+"""
+
+from __future__ import annotations
+
+import abc
+from collections.abc import Iterable
+from enum import Enum
+from typing import Any, ClassVar
+
+import numpy as np
+
+from lwbench.payload import Payload, PayloadError
+from lwbench.points import POINT_ENCODINGS, pack_points, unpack_points
+from lwbench.types import Frame, Param, ParameterError, resolve_params
+
+__all__ = [
+    "Codec",
+    "CodecKind",
+    "RepresentationCodec",
+    "SelectionCodec",
+    "BUDGET_PARAMS",
+    "SelectionError",
+]
+
+
+class CodecKind(str, Enum):
+    REPRESENTATION = "representation"
+    SELECTION = "selection"
+
+
+class SelectionError(ValueError):
+    """A selector returned indices that do not describe a subset of the scan."""
+
+
+class Codec(abc.ABC):
+    """Base of every codec.
+
+    Subclasses set the class attributes and implement the abstract methods of their kind.
+    ``__init__`` only resolves parameters (defaults, types, ranges) into ``self.config``;
+    heavy set-up belongs in the first ``encode`` call, which the runner times as warm-up.
+    """
+
+    name: ClassVar[str]
+    kind: ClassVar[CodecKind]
+    version: ClassVar[str] = "1"
+    description: ClassVar[str] = ""
+    params: ClassVar[tuple[Param, ...]] = ()
+    supports_gpu: ClassVar[bool] = False
+
+    def __init__(self, **params: Any) -> None:
+        self.config: dict[str, Any] = resolve_params(self.name, self.all_params(), params)
+
+    @classmethod
+    def all_params(cls) -> tuple[Param, ...]:
+        """Every parameter this codec accepts (its own plus its kind's)."""
+        return cls.params
+
+    @classmethod
+    def describe(cls) -> dict:
+        return {
+            "name": cls.name,
+            "kind": cls.kind.value,
+            "version": cls.version,
+            "description": cls.description,
+            "supports_gpu": cls.supports_gpu,
+            "params": [p.describe() for p in cls.all_params()],
+        }
+
+    @abc.abstractmethod
+    def encode(self, frame: Frame) -> bytes:
+        """Turn a frame into the bytes that cross the link."""
+
+    @abc.abstractmethod
+    def decode(self, data: bytes) -> np.ndarray:
+        """Rebuild a cloud (float32 ``(M, 3)``, sensor frame) from bytes alone."""
+
+    # -- helpers for subclasses ------------------------------------------------------------
+    def make_payload(self, frame: Frame, meta: dict[str, Any], body: bytes) -> bytes:
+        """Wrap a codec's body with the shared header; the frame's pose travels with it."""
+        return Payload(self.name, meta, body, frame.pose).to_bytes()
+
+    def read_payload(self, data: bytes) -> Payload:
+        """Parse and check a payload meant for this codec (raises ``PayloadError``)."""
+        return Payload.from_bytes(data, expect_codec=self.name)
+
+    @staticmethod
+    def meta_field(payload: Payload, key: str, kind: type | tuple[type, ...]) -> Any:
+        """A required metadata field of the right type, or ``PayloadError``."""
+        value = payload.meta.get(key)
+        if not isinstance(value, kind) or isinstance(value, bool) and kind is not bool:
+            raise PayloadError(f"{payload.codec_id} payload: metadata field {key!r} missing or invalid")
+        return value
+
+
+class RepresentationCodec(Codec):
+    """A codec that models the scan and rebuilds a cloud from the model."""
+
+    kind = CodecKind.REPRESENTATION
+
+
+BUDGET_PARAMS: tuple[Param, ...] = (
+    Param("ratio", "float", 0.1, "share of the scan's points to keep (ignored if points is set)",
+          low=0.0, high=1.0),
+    Param("points", "int", None, "number of points to keep (overrides ratio)", low=0),
+)
+
+
+class SelectionCodec(Codec):
+    """A codec that keeps a subset of the scan's points.
+
+    Subclasses implement :meth:`select`. Budgeted selectors declare :data:`BUDGET_PARAMS`
+    (``ratio`` / ``points``, the names every selection codec uses) and call :meth:`budget`.
+    """
+
+    kind = CodecKind.SELECTION
+    serializer_params: ClassVar[tuple[Param, ...]] = (
+        Param("encoding", "str", "float32", "point serializer format", choices=POINT_ENCODINGS),
+        Param("quant_step", "float", 0.005, "quantization step in metres (encoding=quantized)",
+              low=1e-6, high=10.0),
+    )
+
+    @classmethod
+    def all_params(cls) -> tuple[Param, ...]:
+        return cls.params + cls.serializer_params
+
+    @abc.abstractmethod
+    def select(self, frame: Frame) -> np.ndarray:
+        """Indices of the points to keep (unique, in range)."""
+
+    def budget(self, n_points: int) -> int:
+        """How many of ``n_points`` to keep, from ``points`` or ``ratio``."""
+        points = self.config.get("points")
+        if points is not None:
+            return min(int(points), n_points)
+        ratio = self.config.get("ratio")
+        if ratio is None:
+            raise ParameterError(f"{self.name}: set ratio or points")
+        return min(n_points, int(round(ratio * n_points)))
+
+    def encode_selected(self, frame: Frame, indices: Iterable[int]) -> bytes:
+        idx = np.asarray(indices)
+        if idx.ndim != 1 or (len(idx) and not np.issubdtype(idx.dtype, np.integer)):
+            raise SelectionError(f"{self.name}: select() must return a 1-D integer array")
+        if len(idx) and (idx.min() < 0 or idx.max() >= len(frame)):
+            raise SelectionError(f"{self.name}: selected index out of range [0, {len(frame)})")
+        if len(np.unique(idx)) != len(idx):
+            raise SelectionError(f"{self.name}: select() returned duplicate indices")
+        body = pack_points(frame.points[idx], self.config["encoding"], self.config["quant_step"])
+        return self.make_payload(frame, {}, body)
+
+    def encode(self, frame: Frame) -> bytes:
+        return self.encode_selected(frame, self.select(frame))
+
+    def decode(self, data: bytes) -> np.ndarray:
+        return unpack_points(self.read_payload(data).body)

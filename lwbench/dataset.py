@@ -1,0 +1,82 @@
+"""The dataset interface: an indexable sequence of frames, optionally with ground-truth poses."""
+
+from __future__ import annotations
+
+import abc
+import hashlib
+import json
+from pathlib import Path
+from typing import Any, ClassVar
+
+from lwbench.types import Frame, Param, resolve_params
+
+__all__ = ["Dataset"]
+
+
+class Dataset(abc.ABC):
+    """A sequence of frames.
+
+    Loaders follow one pattern (one small class per source): ``__init__`` resolves the declared
+    parameters into ``self.config`` and reads only what it needs to know the length; frames are
+    read lazily by :meth:`frame`, so a 10,000-scan folder costs nothing until it is iterated.
+    Loaders that read a path declare a ``path`` parameter and implement :meth:`sniff` so that
+    ``lwbench run --dataset PATH`` can pick them automatically.
+    """
+
+    name: ClassVar[str]
+    description: ClassVar[str] = ""
+    params: ClassVar[tuple[Param, ...]] = ()
+
+    def __init__(self, **params: Any) -> None:
+        self.config: dict[str, Any] = resolve_params(self.name, self.params, params)
+
+    @abc.abstractmethod
+    def __len__(self) -> int: ...
+
+    @abc.abstractmethod
+    def frame(self, index: int) -> Frame:
+        """Frame ``index`` (0-based); raises ``IndexError`` past the end."""
+
+    @property
+    @abc.abstractmethod
+    def has_poses(self) -> bool:
+        """Whether frames carry ground-truth poses (sequence metrics need them)."""
+
+    def __getitem__(self, index: int) -> Frame:
+        if not -len(self) <= index < len(self):
+            raise IndexError(f"{self.name}: frame {index} out of range (0..{len(self) - 1})")
+        return self.frame(index % len(self))
+
+    def __iter__(self):
+        for i in range(len(self)):
+            yield self.frame(i)
+
+    @classmethod
+    def sniff(cls, path: Path) -> bool:
+        """Whether this loader can read ``path`` (only loaders with a ``path`` parameter)."""
+        return False
+
+    @classmethod
+    def describe(cls) -> dict:
+        return {
+            "name": cls.name,
+            "description": cls.description,
+            "params": [p.describe() for p in cls.params],
+        }
+
+    def identity(self) -> str:
+        """A stable description of *what data* this is, stored with every result row.
+
+        The default hashes the parameters plus, for path datasets, each file's name, size and
+        mtime, so that changed data on disk is never a cache hit.
+        """
+        h = hashlib.sha256(json.dumps(self.config, sort_keys=True, default=str).encode())
+        path = self.config.get("path")
+        if path:
+            p = Path(path)
+            files = sorted(p.rglob("*")) if p.is_dir() else [p]
+            for f in files:
+                if f.is_file():
+                    st = f.stat()
+                    h.update(f"{f.relative_to(p) if p.is_dir() else f.name}:{st.st_size}:{int(st.st_mtime)}".encode())
+        return f"{self.name}:{h.hexdigest()[:16]}"

@@ -1,0 +1,68 @@
+"""The one shared point serializer: how selection codecs' kept points become bytes.
+
+Every selection codec (random, keypoints, PocoNet, voxel) goes through this, so their byte
+counts differ only by how many points they keep and the precision asked for -- never by who
+wrote the serializer.
+
+Formats (the ``encoding`` parameter every selection codec declares):
+
+- ``float32``: ``N x 3`` little-endian float32, lossless.
+- ``quantized``: origin (3 x f32) and step (f32), then each coordinate as an unsigned integer
+  offset from the origin in units of ``step``, in 16 bits when the extent allows it and 32 bits
+  otherwise. The error per coordinate is at most ``step / 2``.
+"""
+
+from __future__ import annotations
+
+import struct
+
+import numpy as np
+
+from lwbench.payload import PayloadError
+
+__all__ = ["POINT_ENCODINGS", "pack_points", "unpack_points"]
+
+POINT_ENCODINGS = ("float32", "quantized")
+_HEAD = struct.Struct("<BI")  # encoding id, point count
+_QHEAD = struct.Struct("<4fB")  # origin xyz, step, bytes per value
+
+
+def pack_points(points: np.ndarray, encoding: str = "float32", step: float = 0.005) -> bytes:
+    pts = np.asarray(points, dtype=np.float32).reshape(-1, 3)
+    if encoding == "float32":
+        return _HEAD.pack(0, len(pts)) + pts.astype("<f4").tobytes()
+    if encoding != "quantized":
+        raise ValueError(f"unknown point encoding {encoding!r}; choose from {POINT_ENCODINGS}")
+    if not step > 0:
+        raise ValueError(f"quantization step must be positive, got {step}")
+    origin = pts.min(axis=0) if len(pts) else np.zeros(3, np.float32)
+    q = np.rint((pts.astype(np.float64) - origin) / step)
+    width = 2 if (q.max() if len(q) else 0) < 2**16 else 4
+    dtype = "<u2" if width == 2 else "<u4"
+    return (
+        _HEAD.pack(1, len(pts))
+        + _QHEAD.pack(*origin.tolist(), step, width)
+        + q.astype(dtype).tobytes()
+    )
+
+
+def unpack_points(body: bytes) -> np.ndarray:
+    try:
+        enc, n = _HEAD.unpack_from(body, 0)
+        off = _HEAD.size
+        if enc == 0:
+            expected = off + 12 * n
+            if len(body) != expected:
+                raise PayloadError(f"point body has {len(body)} bytes, expected {expected}")
+            return np.frombuffer(body, dtype="<f4", offset=off).reshape(n, 3).astype(np.float32)
+        if enc == 1:
+            ox, oy, oz, step, width = _QHEAD.unpack_from(body, off)
+            off += _QHEAD.size
+            if width not in (2, 4) or len(body) != off + 3 * width * n:
+                raise PayloadError("quantized point body has the wrong size")
+            q = np.frombuffer(body, dtype="<u2" if width == 2 else "<u4", offset=off)
+            pts = q.reshape(n, 3).astype(np.float64) * step + np.array([ox, oy, oz])
+            return pts.astype(np.float32)
+    except struct.error as exc:
+        raise PayloadError(f"truncated point body: {exc}") from None
+    raise PayloadError(f"unknown point encoding id {enc}")

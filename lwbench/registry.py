@@ -1,0 +1,186 @@
+"""Plugin discovery: entry points in the ``lwbench`` group, loaded one at a time.
+
+pluggy's own ``load_setuptools_entrypoints`` stops at the first plugin that fails to import,
+so one broken third-party package would take the whole tool down. Here each entry point is
+loaded and registered on its own; a failure is recorded (and shown by ``lwbench list``) and the
+rest carry on. ``strict=True`` (CLI ``--strict``, for CI) turns any failure into an error.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata as md
+import traceback
+from dataclasses import dataclass, field
+from typing import Any
+
+import pluggy
+
+from lwbench import hookspecs
+from lwbench.codec import Codec
+from lwbench.dataset import Dataset
+from lwbench.metric import FrameMetric, SequenceMetric
+from lwbench.types import LwbenchError
+
+__all__ = ["Registry", "PluginFailure", "PluginError", "get_registry", "ENTRY_POINT_GROUP"]
+
+ENTRY_POINT_GROUP = "lwbench"
+
+
+class PluginError(LwbenchError):
+    """A plugin failed to load (raised only in strict mode) or a name is unknown."""
+
+
+@dataclass(frozen=True)
+class PluginFailure:
+    plugin: str
+    target: str
+    error: str
+    detail: str = ""
+
+
+@dataclass
+class Registry:
+    """What the installed plugins provide, by name, and which package provides each."""
+
+    pm: pluggy.PluginManager
+    codecs: dict[str, type[Codec]] = field(default_factory=dict)
+    datasets: dict[str, type[Dataset]] = field(default_factory=dict)
+    frame_metrics: dict[str, type[FrameMetric]] = field(default_factory=dict)
+    sequence_metrics: dict[str, type[SequenceMetric]] = field(default_factory=dict)
+    providers: dict[tuple[str, str], str] = field(default_factory=dict)
+    failures: list[PluginFailure] = field(default_factory=list)
+
+    # -- loading ---------------------------------------------------------------------------
+    def load_entry_points(self, group: str = ENTRY_POINT_GROUP) -> None:
+        for ep in sorted(md.entry_points(group=group), key=lambda e: e.name):
+            dist = ep.dist.name if ep.dist is not None else "?"
+            try:
+                module = ep.load()
+            except Exception as exc:  # noqa: BLE001 - any import error is the plugin's, not ours
+                self._fail(ep.name, ep.value, exc)
+                continue
+            self.register(module, ep.name, provider=dist, target=ep.value)
+
+    def register(self, plugin: Any, name: str, *, provider: str = "?", target: str = "") -> bool:
+        """Register one plugin object and collect what it provides; False if it failed."""
+        try:
+            self.pm.register(plugin, name=name)
+            self.pm.check_pending()
+        except Exception as exc:  # noqa: BLE001
+            if self.pm.is_registered(plugin):
+                self.pm.unregister(plugin)
+            self._fail(name, target or repr(plugin), exc)
+            return False
+        try:
+            self._collect(plugin, name, provider)
+        except Exception as exc:  # noqa: BLE001
+            self.pm.unregister(plugin)
+            self._fail(name, target or repr(plugin), exc)
+            return False
+        return True
+
+    def _collect(self, plugin: Any, name: str, provider: str) -> None:
+        def call(hook: str) -> list:
+            impl = getattr(plugin, hook, None)
+            return list(impl() or []) if impl is not None else []
+
+        found: list[tuple[str, dict, str, type]] = []
+        for cls in call("lwbench_codecs"):
+            _check_subclass(cls, Codec, "codec")
+            found.append(("codec", self.codecs, cls.name, cls))
+        for cls in call("lwbench_datasets"):
+            _check_subclass(cls, Dataset, "dataset")
+            found.append(("dataset", self.datasets, cls.name, cls))
+        for cls in call("lwbench_metrics"):
+            if isinstance(cls, type) and issubclass(cls, FrameMetric):
+                found.append(("metric", self.frame_metrics, cls.name, cls))
+            elif isinstance(cls, type) and issubclass(cls, SequenceMetric):
+                found.append(("metric", self.sequence_metrics, cls.name, cls))
+            else:
+                raise PluginError(f"{cls!r} is not a FrameMetric or SequenceMetric subclass")
+        taken_ids = {i for m in (*self.frame_metrics.values(), *self.sequence_metrics.values())
+                     for i in m.ids}
+        for kind, table, key, cls in found:
+            if key in table:
+                raise PluginError(
+                    f"{kind} {key!r} is already provided by {self.providers[(kind, key)]}"
+                )
+            if kind == "metric":
+                clash = taken_ids & set(cls.ids)
+                if clash:
+                    raise PluginError(f"metric {key!r} redefines metric id(s) {sorted(clash)}")
+                taken_ids |= set(cls.ids)
+        for kind, table, key, cls in found:
+            table[key] = cls
+            self.providers[(kind, key)] = f"{provider} ({name})"
+
+    def _fail(self, name: str, target: str, exc: BaseException) -> None:
+        detail = "".join(traceback.format_exception(type(exc), exc, exc.__traceback__))
+        self.failures.append(PluginFailure(name, target, f"{type(exc).__name__}: {exc}", detail))
+
+    # -- lookup ----------------------------------------------------------------------------
+    def codec(self, name: str) -> type[Codec]:
+        return _lookup(self.codecs, name, "codec", self.failures)
+
+    def dataset(self, name: str) -> type[Dataset]:
+        return _lookup(self.datasets, name, "dataset", self.failures)
+
+    def metric_ids(self) -> list[str]:
+        ids: list[str] = []
+        for m in self.frame_metrics.values():
+            ids.extend(m.ids)
+        return ids
+
+    def sequence_metric_ids(self) -> list[str]:
+        ids: list[str] = []
+        for m in self.sequence_metrics.values():
+            ids.extend(m.ids)
+        return ids
+
+    def raise_failures(self) -> None:
+        if self.failures:
+            lines = "\n".join(f"  {f.plugin} ({f.target}): {f.error}" for f in self.failures)
+            raise PluginError(f"{len(self.failures)} plugin(s) failed to load:\n{lines}")
+
+
+def _check_subclass(cls: Any, base: type, what: str) -> None:
+    if not (isinstance(cls, type) and issubclass(cls, base)):
+        raise PluginError(f"{cls!r} is not a {base.__name__} subclass")
+    if not getattr(cls, "name", None):
+        raise PluginError(f"{what} class {cls.__name__} has no name")
+
+
+def _lookup(table: dict, name: str, what: str, failures: list[PluginFailure]) -> Any:
+    try:
+        return table[name]
+    except KeyError:
+        hint = ""
+        broken = [f.plugin for f in failures if f.plugin == name]
+        if broken:
+            hint = f" (plugin {name!r} failed to load: see `lwbench list`)"
+        known = ", ".join(sorted(table)) or "(none installed)"
+        raise PluginError(f"unknown {what} {name!r}{hint}; available: {known}") from None
+
+
+def new_registry(*, load: bool = True, strict: bool = False) -> Registry:
+    pm = pluggy.PluginManager(hookspecs.PROJECT)
+    pm.add_hookspecs(hookspecs)
+    reg = Registry(pm)
+    if load:
+        reg.load_entry_points()
+    if strict:
+        reg.raise_failures()
+    return reg
+
+
+_DEFAULT: Registry | None = None
+
+
+def get_registry(*, strict: bool = False) -> Registry:
+    """The process-wide registry of installed plugins (loaded once)."""
+    global _DEFAULT
+    if _DEFAULT is None:
+        _DEFAULT = new_registry()
+    if strict:
+        _DEFAULT.raise_failures()
+    return _DEFAULT

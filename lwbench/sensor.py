@@ -1,0 +1,278 @@
+"""Sensor models and the range-image projection every codec and metric shares.
+
+A :class:`SensorModel` says what a spinning LiDAR can see: a table of beam elevation angles, an
+azimuth step, a range window and a rotation rate. The range image is one cell per
+(beam, azimuth step); VSGP decodes onto it and the range metrics compare clouds on it, so the
+projection lives here, in one place, instead of being re-derived (slightly differently) by each
+codec and metric.
+
+Conventions (fixed, so payloads and metrics agree):
+- azimuth ``theta = atan2(y, x)`` in ``[-pi, pi)``; column ``floor((theta + pi) / step)``;
+- elevation ``alpha = asin(z / r)`` (0 at the horizon, positive up); a point belongs to the
+  beam whose elevation is nearest (rows ordered by ascending elevation);
+- a cell keeps the *nearest* return when several points fall into it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["SensorModel", "RangeImage", "SENSOR_PRESETS", "get_sensor"]
+
+
+@dataclass(frozen=True)
+class RangeImage:
+    """Ranges on a sensor grid: ``ranges[row, col]`` in metres, ``0`` where there is no return.
+
+    ``index[row, col]`` is the index of the source point kept in that cell (``-1`` if none), so a
+    caller can carry per-point attributes (intensity, ring) through the projection.
+    """
+
+    ranges: np.ndarray
+    index: np.ndarray
+
+    @property
+    def valid(self) -> np.ndarray:
+        return self.ranges > 0
+
+
+@dataclass(frozen=True)
+class SensorModel:
+    """A spinning LiDAR's geometry.
+
+    ``elevations_deg`` is the beam table sorted ascending (row 0 = lowest beam). Non-uniform
+    tables (HDL-64E, OS1) are supported: a point is assigned to the nearest beam.
+    """
+
+    name: str
+    elevations_deg: tuple[float, ...]
+    azimuth_step_deg: float
+    min_range: float
+    max_range: float
+    rate_hz: float
+    _mid: np.ndarray = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        elev = tuple(float(e) for e in sorted(self.elevations_deg))
+        if len(elev) < 1:
+            raise ValueError("a sensor needs at least one beam")
+        if not 0 < self.azimuth_step_deg <= 360:
+            raise ValueError(f"azimuth step must be in (0, 360] degrees, got {self.azimuth_step_deg}")
+        if not 0 <= self.min_range < self.max_range:
+            raise ValueError(f"need 0 <= min_range < max_range, got {self.min_range}, {self.max_range}")
+        if self.rate_hz <= 0:
+            raise ValueError(f"rate must be positive, got {self.rate_hz}")
+        object.__setattr__(self, "elevations_deg", elev)
+        e = np.radians(np.asarray(elev))
+        object.__setattr__(self, "_mid", (e[1:] + e[:-1]) / 2)
+
+    # -- geometry -------------------------------------------------------------------------
+    @property
+    def n_beams(self) -> int:
+        return len(self.elevations_deg)
+
+    @property
+    def n_azimuth(self) -> int:
+        return int(round(360.0 / self.azimuth_step_deg))
+
+    @property
+    def n_rays(self) -> int:
+        return self.n_beams * self.n_azimuth
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (self.n_beams, self.n_azimuth)
+
+    @property
+    def elevations_rad(self) -> np.ndarray:
+        return np.radians(np.asarray(self.elevations_deg))
+
+    @property
+    def azimuth_step_rad(self) -> float:
+        return 2 * math.pi / self.n_azimuth
+
+    def azimuths_rad(self) -> np.ndarray:
+        """Azimuth of each column's centre."""
+        return -math.pi + (np.arange(self.n_azimuth) + 0.5) * self.azimuth_step_rad
+
+    def ray_directions(self) -> np.ndarray:
+        """Unit direction of every ray, shape ``(n_beams, n_azimuth, 3)`` float64."""
+        el = self.elevations_rad[:, None]
+        az = self.azimuths_rad()[None, :]
+        return np.stack(
+            np.broadcast_arrays(np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)),
+            axis=-1,
+        )
+
+    # -- projection -----------------------------------------------------------------------
+    def cells(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Row, column and range of each point (no filtering)."""
+        p = np.asarray(points, dtype=np.float64)
+        r = np.linalg.norm(p, axis=1)
+        theta = np.arctan2(p[:, 1], p[:, 0])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            alpha = np.arcsin(np.clip(p[:, 2] / np.where(r > 0, r, 1.0), -1.0, 1.0))
+        rows = np.searchsorted(self._mid, alpha)
+        cols = np.floor((theta + math.pi) / self.azimuth_step_rad).astype(np.int64) % self.n_azimuth
+        return rows.astype(np.int64), cols, r
+
+    def project(self, points: np.ndarray, *, clip_range: bool = True) -> RangeImage:
+        """Project points onto the range image, keeping the nearest return per cell.
+
+        ``clip_range`` drops points outside ``[min_range, max_range]`` first, which is what the
+        sensor itself would have done.
+        """
+        rows, cols, r = self.cells(points)
+        keep = r > 0
+        if clip_range:
+            keep &= (r >= self.min_range) & (r <= self.max_range)
+        idx = np.flatnonzero(keep)
+        flat = rows[idx] * self.n_azimuth + cols[idx]
+        # Sort by (cell, range) and take the first of each cell: the nearest return.
+        order = np.lexsort((r[idx], flat))
+        flat_sorted = flat[order]
+        first = np.ones(len(order), dtype=bool)
+        first[1:] = flat_sorted[1:] != flat_sorted[:-1]
+        winners = idx[order[first]]
+        ranges = np.zeros(self.n_rays, dtype=np.float32)
+        index = np.full(self.n_rays, -1, dtype=np.int64)
+        ranges[flat_sorted[first]] = r[winners]
+        index[flat_sorted[first]] = winners
+        return RangeImage(ranges.reshape(self.shape), index.reshape(self.shape))
+
+    def unproject(self, ranges: np.ndarray) -> np.ndarray:
+        """Points (float32, ``(K,3)``) at the centre ray of every cell with a positive range."""
+        ranges = np.asarray(ranges)
+        if ranges.shape != self.shape:
+            raise ValueError(f"range image must have shape {self.shape}, got {ranges.shape}")
+        valid = ranges > 0
+        return (self.ray_directions()[valid] * ranges[valid][:, None]).astype(np.float32)
+
+    # -- serialization (payloads carry the sensor so decode needs nothing else) -------------
+    def to_dict(self) -> dict:
+        """Compact description: a preset name when it is one, else the full table."""
+        preset = SENSOR_PRESETS.get(self.name)
+        if preset is not None and preset == self:
+            return {"preset": self.name}
+        return {
+            "name": self.name,
+            "elevations_deg": [round(e, 5) for e in self.elevations_deg],
+            "azimuth_step_deg": self.azimuth_step_deg,
+            "min_range": self.min_range,
+            "max_range": self.max_range,
+            "rate_hz": self.rate_hz,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> SensorModel:
+        if "preset" in d:
+            return get_sensor(d["preset"])
+        return cls(
+            name=str(d["name"]),
+            elevations_deg=tuple(float(e) for e in d["elevations_deg"]),
+            azimuth_step_deg=float(d["azimuth_step_deg"]),
+            min_range=float(d["min_range"]),
+            max_range=float(d["max_range"]),
+            rate_hz=float(d["rate_hz"]),
+        )
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), separators=(",", ":"))
+
+    def with_max_range(self, max_range: float) -> SensorModel:
+        return SensorModel(
+            self.name if max_range == self.max_range else f"{self.name}@{max_range:g}m",
+            self.elevations_deg,
+            self.azimuth_step_deg,
+            self.min_range,
+            max_range,
+            self.rate_hz,
+        )
+
+    # -- derivation from data ---------------------------------------------------------------
+    @classmethod
+    def from_points(
+        cls,
+        points: np.ndarray,
+        *,
+        ring: np.ndarray | None = None,
+        rate_hz: float = 10.0,
+        name: str = "derived",
+        bin_deg: float = 0.02,
+    ) -> SensorModel:
+        """Estimate a sensor model from one real scan.
+
+        With a per-point ``ring`` the beam elevations are the per-ring medians (exact). Without
+        it, beams are the peaks of the elevation histogram: spinning LiDARs put their returns on
+        a few discrete elevations, so the histogram is a comb. The azimuth step is the median
+        gap between consecutive returns of the densest beam; the range window is the data's.
+        """
+        p = np.asarray(points, dtype=np.float64)
+        if len(p) < 100:
+            raise ValueError(f"need at least 100 points to derive a sensor model, got {len(p)}")
+        r = np.linalg.norm(p, axis=1)
+        ok = r > 0
+        p, r = p[ok], r[ok]
+        elev = np.degrees(np.arcsin(p[:, 2] / r))
+        az = np.degrees(np.arctan2(p[:, 1], p[:, 0]))
+        if ring is not None:
+            ring = np.asarray(ring)[ok]
+            beams = np.unique(ring)
+            table = np.array([np.median(elev[ring == b]) for b in beams])
+            labels = np.searchsorted(beams, ring)
+        else:
+            from scipy.signal import find_peaks
+
+            lo, hi = elev.min() - bin_deg, elev.max() + bin_deg
+            hist, edges = np.histogram(elev, bins=max(8, int((hi - lo) / bin_deg)), range=(lo, hi))
+            smooth = np.convolve(hist, np.ones(3) / 3, mode="same")
+            peaks, _ = find_peaks(smooth, height=max(5.0, 0.02 * smooth.max()), distance=5)
+            table = (edges[peaks] + edges[peaks + 1]) / 2
+            mid = (table[1:] + table[:-1]) / 2
+            labels = np.searchsorted(mid, elev)
+        counts = np.bincount(labels, minlength=len(table))
+        densest = np.sort(az[labels == np.argmax(counts)])
+        gaps = np.diff(densest)
+        gaps = gaps[gaps > 1e-4]
+        step = float(np.median(gaps)) if len(gaps) else 0.2
+        return cls(
+            name=name,
+            elevations_deg=tuple(float(t) for t in np.sort(table)),
+            azimuth_step_deg=360.0 / max(1, round(360.0 / step)),
+            min_range=float(np.floor(r.min() * 10) / 10),
+            max_range=float(np.ceil(r.max())),
+            rate_hz=rate_hz,
+        )
+
+
+def _hdl64e_table() -> tuple[float, ...]:
+    # HDL-64E S2 (KITTI): upper block of 32 lasers from +2.0 to -8.33 deg (1/3 deg apart),
+    # lower block of 32 from -8.83 to -24.33 deg (1/2 deg apart), per the Velodyne manual.
+    upper = np.linspace(2.0, -8.33, 32)
+    lower = np.linspace(-8.83, -24.33, 32)
+    return tuple(float(e) for e in np.concatenate([upper, lower]))
+
+
+SENSOR_PRESETS: dict[str, SensorModel] = {
+    # The VSGP paper's setting: VLP-16, +-15 deg in 2 deg steps, 0.1 deg azimuth (3600 columns),
+    # 10 m max range, 4 Hz -> 16 x 3600 = 57,600 rays.
+    "vlp16": SensorModel("vlp16", tuple(np.linspace(-15, 15, 16)), 0.1, 0.1, 10.0, 4.0),
+    # KITTI's HDL-64E at 10 Hz: ~2,083 firings per turn; 2,048 columns (0.176 deg) keeps the
+    # cell count near the scan's point count (~120k).
+    "hdl64e": SensorModel("hdl64e", _hdl64e_table(), 360.0 / 2048, 0.9, 120.0, 10.0),
+    # Ouster OS1-128 in 1024x10 mode, 45 deg vertical field of view.
+    "os1-128": SensorModel("os1-128", tuple(np.linspace(-22.5, 22.5, 128)), 360.0 / 1024, 0.3, 120.0, 10.0),
+}
+
+
+def get_sensor(name: str) -> SensorModel:
+    try:
+        return SENSOR_PRESETS[name.lower()]
+    except KeyError:
+        raise ValueError(
+            f"unknown sensor {name!r}; presets: {', '.join(sorted(SENSOR_PRESETS))}"
+        ) from None
