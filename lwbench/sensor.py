@@ -230,7 +230,9 @@ class SensorModel:
             lo, hi = elev.min() - bin_deg, elev.max() + bin_deg
             hist, edges = np.histogram(elev, bins=max(8, int((hi - lo) / bin_deg)), range=(lo, hi))
             smooth = np.convolve(hist, np.ones(3) / 3, mode="same")
-            peaks, _ = find_peaks(smooth, height=max(5.0, 0.02 * smooth.max()), distance=5)
+            # Real beams are >= ~0.3 deg apart (HDL-64E: 1/3 deg); closer peaks are one beam whose
+            # elevation wobbles along the sweep (laser origins are offset from the sensor axis).
+            peaks, _ = find_peaks(smooth, height=max(5.0, 0.02 * smooth.max()), distance=int(0.25 / bin_deg))
             table = (edges[peaks] + edges[peaks + 1]) / 2
             mid = (table[1:] + table[:-1]) / 2
             labels = np.searchsorted(mid, elev)
