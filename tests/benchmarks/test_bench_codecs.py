@@ -1,0 +1,80 @@
+"""Encode + decode time per ~120k-point scan for draco, rangeimage and voxel.
+
+Draco (14 bits, level 7) is the reference: each benchmark stores its fastest round trip over
+Draco's fastest, timed in the same process, in ``extra_info["vs_draco"]``. Minimums, because on
+a shared machine the noise only ever adds time; the ratio is the figure to compare, the
+absolute time only its context.
+
+    /work/venv/bin/pytest tests/benchmarks/test_bench_codecs.py -m benchmark --benchmark-enable
+"""
+
+from __future__ import annotations
+
+import time
+from functools import cache
+from pathlib import Path
+
+import numpy as np
+import pytest
+from lwbench_plugins.draco import DracoCodec
+from lwbench_plugins.rangeimage import RangeImageCodec
+from lwbench_plugins.voxel import VoxelSelector
+
+from lwbench import Codec, Frame, get_sensor
+
+KITTI = Path("/work/shared/data/real/kitti00_frames0-1/000000.bin")
+
+CODECS: dict[str, tuple[type[Codec], dict]] = {
+    "draco-14": (DracoCodec, {"quantization_bits": 14}),
+    "draco-11": (DracoCodec, {"quantization_bits": 11}),
+    "rangeimage-1cm": (RangeImageCodec, {"step": 0.01}),
+    "rangeimage-5cm": (RangeImageCodec, {"step": 0.05}),
+    "rangeimage-lossless": (RangeImageCodec, {"mode": "lossless"}),
+    "voxel-0.2": (VoxelSelector, {"voxel_size": 0.2}),
+    "voxel-0.5": (VoxelSelector, {"voxel_size": 0.5}),
+}
+
+
+@cache
+def scan() -> Frame:
+    """KITTI 00 frame 0 (124,668 points) when the sample is there, else a 120k-point
+    synthetic HDL-64E sweep of the same size."""
+    sensor = get_sensor("hdl64e")
+    if KITTI.exists():
+        return Frame(np.fromfile(KITTI, dtype=np.float32).reshape(-1, 3), sensor)
+    rng = np.random.default_rng(0)
+    ranges = 5 + 30 * rng.random(sensor.shape)
+    ranges[rng.random(sensor.shape) < 0.08] = 0
+    return Frame(sensor.unproject(ranges), sensor)
+
+
+def round_trip(codec: Codec, frame: Frame) -> np.ndarray:
+    return type(codec)().decode(codec.encode(frame))
+
+
+@cache
+def draco_ms() -> float:
+    """Fastest of 7 Draco-14 round trips in this process (after one warm-up call)."""
+    codec, frame = DracoCodec(quantization_bits=14), scan()
+    round_trip(codec, frame)
+    times = []
+    for _ in range(7):
+        t = time.perf_counter()
+        round_trip(codec, frame)
+        times.append(time.perf_counter() - t)
+    return min(times) * 1e3
+
+
+@pytest.mark.benchmark
+@pytest.mark.parametrize("name", list(CODECS))
+def test_encode_decode_time(benchmark, name: str) -> None:
+    cls, params = CODECS[name]
+    codec, frame = cls(**params), scan()
+    ref = draco_ms()
+    decoded = benchmark.pedantic(round_trip, args=(codec, frame), rounds=7, warmup_rounds=1)
+    assert decoded.ndim == 2 and decoded.shape[1] == 3 and 0 < len(decoded) <= len(frame)
+    min_ms = benchmark.stats.stats.min * 1e3
+    benchmark.extra_info.update(
+        {"points": len(frame), "bytes": len(codec.encode(frame)), "draco_ms": round(ref, 2),
+         "vs_draco": round(min_ms / ref, 3)}
+    )
