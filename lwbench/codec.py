@@ -107,8 +107,7 @@ class RepresentationCodec(Codec):
 
 
 BUDGET_PARAMS: tuple[Param, ...] = (
-    Param("ratio", "float", 0.1, "share of the scan's points to keep (ignored if points is set)",
-          low=0.0, high=1.0),
+    Param("ratio", "float", 0.1, "share of the scan's points to keep (ignored if points is set)", low=0.0, high=1.0),
     Param("points", "int", None, "number of points to keep (overrides ratio)", low=0),
 )
 
@@ -123,8 +122,7 @@ class SelectionCodec(Codec):
     kind = CodecKind.SELECTION
     serializer_params: ClassVar[tuple[Param, ...]] = (
         Param("encoding", "str", "float32", "point serializer format", choices=POINT_ENCODINGS),
-        Param("quant_step", "float", 0.005, "quantization step in metres (encoding=quantized)",
-              low=1e-6, high=10.0),
+        Param("quant_step", "float", 0.005, "quantization step in metres (encoding=quantized)", low=1e-6, high=10.0),
     )
 
     @classmethod

@@ -52,8 +52,14 @@ def _sensor_for(folder: Path, name: str, first: ScanArrays, rate_hz: float) -> S
 
 def _frame(scan: ScanArrays, sensor: SensorModel, index: int, stamp: float, pose) -> Frame:
     return Frame(
-        scan.points, sensor, index=index, timestamp=stamp, pose=pose,
-        intensity=scan.intensity, ring=scan.ring, time=scan.time,
+        scan.points,
+        sensor,
+        index=index,
+        timestamp=stamp,
+        pose=pose,
+        intensity=scan.intensity,
+        ring=scan.ring,
+        time=scan.time,
     )
 
 
@@ -112,8 +118,7 @@ class KittiDataset(Dataset):
 
     @cached_property
     def sensor(self) -> SensorModel:
-        return _sensor_for(self.root, self.config["sensor"], read_kitti_bin(self.files[0]),
-                           self.config["rate_hz"])
+        return _sensor_for(self.root, self.config["sensor"], read_kitti_bin(self.files[0]), self.config["rate_hz"])
 
     def frame(self, index: int) -> Frame:
         scan = read_kitti_bin(self.files[index])
@@ -165,7 +170,7 @@ class PointFileDataset(Dataset):
             return None
         keys, poses = read_pose_file(path)
         if keys is not None:
-            by_key = dict(zip(keys, poses))
+            by_key = dict(zip(keys, poses, strict=True))
             stems = [f.stem for f in self.files]
             if all(s in by_key for s in stems):
                 return np.stack([by_key[s] for s in stems])
@@ -188,8 +193,7 @@ class PointFileDataset(Dataset):
 
     @cached_property
     def sensor(self) -> SensorModel:
-        return _sensor_for(self.folder, self.config["sensor"], read_point_file(self.files[0]),
-                           self.config["rate_hz"])
+        return _sensor_for(self.folder, self.config["sensor"], read_point_file(self.files[0]), self.config["rate_hz"])
 
     def frame(self, index: int) -> Frame:
         scan = read_point_file(self.files[index])

@@ -6,9 +6,7 @@ from lwbench.types import Param, ParameterError
 
 __all__ = ["DEVICE_PARAM", "resolve_device"]
 
-DEVICE_PARAM = Param(
-    "device", "str", "auto", "torch device: auto (CUDA when available), cpu, cuda, cuda:N"
-)
+DEVICE_PARAM = Param("device", "str", "auto", "torch device: auto (CUDA when available), cpu, cuda, cuda:N")
 
 
 def resolve_device(name: str):

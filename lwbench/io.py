@@ -82,9 +82,7 @@ def read_kitti_bin(path: str | Path) -> ScanArrays:
     else:
         cols = options[0]
     arr = raw.reshape(-1, cols)
-    return ScanArrays(
-        np.ascontiguousarray(arr[:, :3]), np.ascontiguousarray(arr[:, 3]) if cols == 4 else None
-    ).finite()
+    return ScanArrays(np.ascontiguousarray(arr[:, :3]), np.ascontiguousarray(arr[:, 3]) if cols == 4 else None).finite()
 
 
 def read_point_file(path: str | Path) -> ScanArrays:

@@ -39,11 +39,7 @@ def pack_points(points: np.ndarray, encoding: str = "float32", step: float = 0.0
     q = np.rint((pts.astype(np.float64) - origin) / step)
     width = 2 if (q.max() if len(q) else 0) < 2**16 else 4
     dtype = "<u2" if width == 2 else "<u4"
-    return (
-        _HEAD.pack(1, len(pts))
-        + _QHEAD.pack(*origin.tolist(), step, width)
-        + q.astype(dtype).tobytes()
-    )
+    return _HEAD.pack(1, len(pts)) + _QHEAD.pack(*origin.tolist(), step, width) + q.astype(dtype).tobytes()
 
 
 def unpack_points(body: bytes) -> np.ndarray:

@@ -98,13 +98,10 @@ class Registry:
                 found.append(("metric", self.sequence_metrics, cls.name, cls))
             else:
                 raise PluginError(f"{cls!r} is not a FrameMetric or SequenceMetric subclass")
-        taken_ids = {i for m in (*self.frame_metrics.values(), *self.sequence_metrics.values())
-                     for i in m.ids}
+        taken_ids = {i for m in (*self.frame_metrics.values(), *self.sequence_metrics.values()) for i in m.ids}
         for kind, table, key, cls in found:
             if key in table:
-                raise PluginError(
-                    f"{kind} {key!r} is already provided by {self.providers[(kind, key)]}"
-                )
+                raise PluginError(f"{kind} {key!r} is already provided by {self.providers[(kind, key)]}")
             if kind == "metric":
                 clash = taken_ids & set(cls.ids)
                 if clash:

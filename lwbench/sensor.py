@@ -275,6 +275,4 @@ def get_sensor(name: str) -> SensorModel:
     try:
         return SENSOR_PRESETS[name.lower()]
     except KeyError:
-        raise ValueError(
-            f"unknown sensor {name!r}; presets: {', '.join(sorted(SENSOR_PRESETS))}"
-        ) from None
+        raise ValueError(f"unknown sensor {name!r}; presets: {', '.join(sorted(SENSOR_PRESETS))}") from None

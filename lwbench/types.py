@@ -71,9 +71,7 @@ class Frame:
             if arr is not None:
                 arr = np.asarray(arr)
                 if arr.shape != (len(pts),):
-                    raise InvalidFrameError(
-                        f"{name} must have shape ({len(pts)},), got {arr.shape}"
-                    )
+                    raise InvalidFrameError(f"{name} must have shape ({len(pts)},), got {arr.shape}")
                 object.__setattr__(self, name, arr)
         if self.pose is not None:
             pose = np.asarray(self.pose, dtype=np.float64)
@@ -97,8 +95,14 @@ class Frame:
             return None if a is None else a[idx]
 
         return Frame(
-            self.points[idx], self.sensor, self.index, self.timestamp, self.pose,
-            pick(self.intensity), pick(self.ring), pick(self.time),
+            self.points[idx],
+            self.sensor,
+            self.index,
+            self.timestamp,
+            self.pose,
+            pick(self.intensity),
+            pick(self.ring),
+            pick(self.time),
         )
 
 

@@ -1,0 +1,215 @@
+"""Aggregating stored rows into a leaderboard: one line per (dataset, codec configuration).
+
+Frame metrics are summarised over the frames that succeeded (mean, median, p95); sequence
+metrics have one value per configuration. ``failures`` counts failed rows of either kind, so a
+codec that crashes on half the frames cannot hide behind a good mean.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+from collections import defaultdict
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from lwbench.store import ResultRow, ResultStore
+
+__all__ = ["LeaderboardEntry", "build_leaderboard", "to_json", "to_csv", "to_markdown", "DEFAULT_COLUMNS"]
+
+# Lower is better for these; everything else sorts descending.
+LOWER_IS_BETTER = {
+    "bytes",
+    "bits_per_point",
+    "link_kbps",
+    "range_rmsd",
+    "false_returns",
+    "chamfer",
+    "hausdorff",
+    "encode_ms",
+    "decode_ms",
+    "select_ms",
+    "peak_mb",
+    "ate_rmse",
+    "ate_mean",
+    "rot_err_deg",
+    "rpe_trans",
+    "rpe_rot_deg",
+    "map_points",
+    "icp_failures",
+    "points_out",
+}
+DEFAULT_COLUMNS = (
+    "bytes",
+    "ratio",
+    "range_rmsd",
+    "coverage",
+    "false_returns",
+    "chamfer",
+    "d1_psnr",
+    "encode_ms",
+    "decode_ms",
+    "select_ms",
+    "ate_rmse",
+    "occ_iou",
+)
+
+
+@dataclass
+class LeaderboardEntry:
+    dataset: str
+    codec: str
+    params: dict
+    frames: int = 0
+    failures: int = 0
+    stats: dict[str, dict[str, float | None]] = field(default_factory=dict)
+    errors: list[str] = field(default_factory=list)
+    defaults: dict = field(default_factory=dict, repr=False)
+
+    @property
+    def full_label(self) -> str:
+        return f"{self.codec}({','.join(f'{k}={v}' for k, v in sorted(self.params.items()))})"
+
+    @property
+    def label(self) -> str:
+        """The codec with the parameters that differ from its declared defaults."""
+        shown = {k: v for k, v in sorted(self.params.items()) if k not in self.defaults or self.defaults[k] != v}
+        return f"{self.codec}({','.join(f'{k}={v}' for k, v in shown.items())})" if shown else self.codec
+
+    def value(self, metric: str, stat: str = "mean") -> float | None:
+        return self.stats.get(metric, {}).get(stat)
+
+    def as_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "dataset": self.dataset,
+            "codec": self.codec,
+            "params": self.params,
+            "frames": self.frames,
+            "failures": self.failures,
+        }
+        for metric, s in self.stats.items():
+            out[metric] = _finite_or_none(s.get("mean"))
+            out[f"{metric}_median"] = _finite_or_none(s.get("median"))
+            out[f"{metric}_p95"] = _finite_or_none(s.get("p95"))
+        return out
+
+
+def _finite_or_none(v: float | None) -> float | None:
+    return v if v is not None and math.isfinite(v) else None
+
+
+def _summarise(values: list[float]) -> dict[str, float | None]:
+    if not values:
+        return {"mean": None, "median": None, "p95": None}
+    arr = np.asarray(values, dtype=np.float64)
+    # The empirical quantile (no interpolation) stays defined when values are +inf
+    # (lossless PSNR), where interpolating would give inf - inf = NaN.
+    return {
+        "mean": float(arr.mean()),
+        "median": float(np.percentile(arr, 50, method="inverted_cdf")),
+        "p95": float(np.percentile(arr, 95, method="inverted_cdf")),
+    }
+
+
+def build_leaderboard(
+    store: ResultStore,
+    *,
+    dataset: str | None = None,
+    sort: str | None = None,
+    descending: bool | None = None,
+    defaults: dict[str, dict] | None = None,
+) -> list[LeaderboardEntry]:
+    """Entries sorted by ``sort`` (best first). ``defaults`` (codec -> declared defaults) only
+    shortens labels to the parameters that differ."""
+    groups: dict[tuple, list[ResultRow]] = defaultdict(list)
+    for row in store.rows(dataset=dataset):
+        groups[(row.dataset, row.codec, json.dumps(row.params, sort_keys=True))].append(row)
+    entries = []
+    for (ds, codec, params_json), rows in groups.items():
+        entry = LeaderboardEntry(ds, codec, json.loads(params_json), defaults=(defaults or {}).get(codec, {}))
+        per_metric: dict[str, list[float]] = defaultdict(list)
+        for r in rows:
+            if r.status != "ok":
+                entry.failures += 1
+                if r.error and len(entry.errors) < 3:
+                    entry.errors.append(f"frame {r.frame}: {r.error}" if r.kind == "frame" else r.error)
+                continue
+            if r.kind == "frame":
+                entry.frames += 1
+            for k, v in r.metrics.items():
+                if v is not None:
+                    per_metric[k].append(v)
+                else:
+                    per_metric.setdefault(k, [])
+        entry.stats = {k: _summarise(v) for k, v in per_metric.items()}
+        entries.append(entry)
+    key = sort or "ratio"
+    desc = descending if descending is not None else key not in LOWER_IS_BETTER
+
+    def sort_key(e: LeaderboardEntry):
+        v = e.value(key)
+        missing = v is None or (isinstance(v, float) and math.isnan(v))
+        return (e.dataset, missing, 0.0 if missing else (-v if desc else v), e.label)
+
+    return sorted(entries, key=sort_key)
+
+
+def _fmt(v: float | None) -> str:
+    if v is None:
+        return "–"
+    if math.isinf(v):
+        return "inf" if v > 0 else "-inf"
+    a = abs(v)
+    if a == 0:
+        return "0"
+    if a >= 1000:
+        return f"{v:,.0f}"
+    if a >= 100:
+        return f"{v:.1f}"
+    if a >= 1:
+        return f"{v:.3g}" if a < 10 else f"{v:.2f}"
+    return f"{v:.3g}"
+
+
+def table_rows(entries: list[LeaderboardEntry], columns: tuple[str, ...]) -> tuple[list[str], list[list[str]]]:
+    """Header and formatted cells; the dataset column only when there is more than one."""
+    many = len({e.dataset for e in entries}) > 1
+    header = [*(["dataset"] if many else []), "codec", "frames", "fail", *columns]
+    rows = [
+        [*([e.dataset] if many else []), e.label, str(e.frames), str(e.failures), *(_fmt(e.value(c)) for c in columns)]
+        for e in entries
+    ]
+    return header, rows
+
+
+def present_columns(entries: list[LeaderboardEntry], wanted: tuple[str, ...]) -> tuple[str, ...]:
+    """The wanted columns that at least one entry has a value for (no all-empty columns)."""
+    return tuple(c for c in wanted if any(e.value(c) is not None for e in entries))
+
+
+def to_markdown(entries: list[LeaderboardEntry], columns: tuple[str, ...]) -> str:
+    header, rows = table_rows(entries, columns)
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(lines) + "\n"
+
+
+def to_csv(entries: list[LeaderboardEntry]) -> str:
+    dicts = [e.as_dict() for e in entries]
+    fields: list[str] = []
+    for d in dicts:
+        fields += [k for k in d if k not in fields]
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=fields)
+    writer.writeheader()
+    for d in dicts:
+        writer.writerow({k: json.dumps(v, sort_keys=True) if isinstance(v, dict) else v for k, v in d.items()})
+    return buf.getvalue()
+
+
+def to_json(entries: list[LeaderboardEntry]) -> str:
+    return json.dumps([e.as_dict() for e in entries], indent=2)

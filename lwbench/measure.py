@@ -1,0 +1,83 @@
+"""Measuring calls: wall time and peak memory.
+
+Peak memory is the growth of the process's resident high-water mark during the measured
+block. On Linux, writing ``5`` to ``/proc/self/clear_refs`` resets ``VmHWM`` to the current
+RSS, so the peak of *this* block is readable without a sampling thread and includes memory
+that ``tracemalloc`` cannot see (torch, Open3D, BLAS). Elsewhere the value is ``None``. When a
+CUDA device is in use, the peak of torch's CUDA allocator is added.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+__all__ = ["PeakMemory", "Stopwatch"]
+
+_STATUS = Path("/proc/self/status")
+_CLEAR_REFS = Path("/proc/self/clear_refs")
+
+
+def _status_kb(field: str) -> int | None:
+    try:
+        for line in _STATUS.read_text().splitlines():
+            if line.startswith(field + ":"):
+                return int(line.split()[1])
+    except OSError:
+        return None
+    return None
+
+
+class PeakMemory:
+    """Context manager; ``.peak_mb`` after exit (``None`` where it cannot be measured)."""
+
+    def __init__(self, cuda: bool = False) -> None:
+        self.cuda = cuda
+        self.peak_mb: float | None = None
+        self._start_kb: int | None = None
+        self._resettable = False
+
+    def __enter__(self) -> PeakMemory:
+        try:
+            _CLEAR_REFS.write_text("5")
+            self._resettable = True
+        except OSError:
+            self._resettable = False
+        self._start_kb = _status_kb("VmRSS")
+        if self.cuda:
+            import torch
+
+            torch.cuda.reset_peak_memory_stats()
+            self._cuda_start = torch.cuda.memory_allocated()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        hwm = _status_kb("VmHWM")
+        if self._resettable and hwm is not None and self._start_kb is not None:
+            self.peak_mb = max(0, hwm - self._start_kb) / 1024.0
+        if self.cuda:
+            import torch
+
+            extra = (torch.cuda.max_memory_allocated() - self._cuda_start) / 2**20
+            self.peak_mb = (self.peak_mb or 0.0) + max(0.0, extra)
+
+
+class Stopwatch:
+    """Accumulates named wall times in milliseconds (``perf_counter_ns``)."""
+
+    def __init__(self) -> None:
+        self.ms: dict[str, float] = {}
+
+    def time(self, name: str):
+        return _Lap(self, name)
+
+
+class _Lap:
+    def __init__(self, watch: Stopwatch, name: str) -> None:
+        self.watch, self.name = watch, name
+
+    def __enter__(self) -> None:
+        self.t0 = time.perf_counter_ns()
+
+    def __exit__(self, *exc) -> None:
+        self.watch.ms[self.name] = (time.perf_counter_ns() - self.t0) / 1e6

@@ -1,0 +1,29 @@
+"""Rate metrics: what the payload costs on the link (DESIGN.md, "Metrics")."""
+
+from __future__ import annotations
+
+from lwbench import Evaluation, FrameMetric
+
+
+class SizeMetric(FrameMetric):
+    """``bytes`` is always ``len(payload)``: the real serialized size, header and checksum
+    included, so a codec cannot look smaller by leaving metadata out of its count."""
+
+    name = "size"
+    ids = ("bytes", "ratio", "bits_per_point", "link_kbps", "points_in", "points_out")
+    description = (
+        "payload bytes; ratio = 12*|P| / bytes; bits per original point; link rate in kB/s "
+        "(1 kB = 1000 B) at the sensor's frame rate; point counts in and out"
+    )
+
+    def compute(self, ev: Evaluation) -> dict[str, float | None]:
+        n_bytes = len(ev.payload)
+        n_in = len(ev.frame)
+        return {
+            "bytes": float(n_bytes),
+            "ratio": ev.frame.raw_bytes / n_bytes if n_bytes else None,
+            "bits_per_point": 8.0 * n_bytes / n_in if n_in else None,
+            "link_kbps": n_bytes * ev.frame.sensor.rate_hz / 1000.0,
+            "points_in": float(n_in),
+            "points_out": float(len(ev.decoded)),
+        }
