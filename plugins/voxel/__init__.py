@@ -6,8 +6,9 @@ centroid* (or to the voxel's centre) instead, so it is a selection codec: the ke
 real returns, go through the shared point serializer, and their bytes are counted exactly like
 those of the keypoint selectors it competes with.
 
-Vectorized: integer voxel keys are packed into one int64 per point, grouped with one sort, and
-the per-voxel winner is found with a second (lexicographic) sort -- no Python loop over points.
+Vectorized: integer voxel keys are packed into one int64 per point and grouped with one stable
+sort; centroids, distances and the per-voxel minimum are reductions over the sorted runs -- no
+Python loop over points.
 """
 
 from __future__ import annotations
@@ -49,21 +50,27 @@ class VoxelSelector(SelectionCodec):
         if n == 0:
             return np.zeros(0, dtype=np.int64)
         size = self.config["voxel_size"]
-        _, inverse, counts = np.unique(voxel_keys(pts, size), return_inverse=True, return_counts=True)
-        inverse = inverse.reshape(-1)
+        keys = voxel_keys(pts, size)
+        # One stable sort groups the voxels (ties keep index order); everything after it is
+        # per-group reductions over contiguous runs.
+        order = np.argsort(keys, kind="stable")
+        sk = keys[order]
+        starts = np.flatnonzero(np.r_[True, sk[1:] != sk[:-1]])
+        counts = np.diff(np.r_[starts, n])
+        sp = pts[order]
         if self.config["keep"] == "centroid":
-            target = np.stack([np.bincount(inverse, weights=pts[:, k]) for k in range(3)], axis=1)
-            target /= counts[:, None]
+            target = np.add.reduceat(sp, starts, axis=0) / counts[:, None]
         else:
-            target = (np.floor(pts / size) + 0.5) * size
-            target = target[np.unique(inverse, return_index=True)[1]]
-        dist = np.einsum("ij,ij->i", pts - target[inverse], pts - target[inverse])
-        # Sort by (voxel, distance, index): the first point of each voxel wins, ties to the
-        # lower index, so the choice is deterministic.
-        order = np.lexsort((np.arange(n), dist, inverse))
-        first = np.ones(n, dtype=bool)
-        first[1:] = inverse[order[1:]] != inverse[order[:-1]]
-        return np.sort(order[first])
+            target = (np.floor(sp[starts] / size) + 0.5) * size
+        diff = sp - np.repeat(target, counts, axis=0)
+        dist = np.einsum("ij,ij->i", diff, diff)
+        # The winner of a voxel is its first point (lowest index, by the stable sort) at the
+        # voxel's minimum distance: deterministic, exactly one per voxel.
+        is_min = dist == np.repeat(np.minimum.reduceat(dist, starts), counts)
+        group = np.repeat(np.arange(len(starts)), counts)
+        cand = np.flatnonzero(is_min)
+        first = np.r_[True, group[cand[1:]] != group[cand[:-1]]]
+        return np.sort(order[cand[first]])
 
 
 @hookimpl
