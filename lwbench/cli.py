@@ -27,7 +27,7 @@ app = typer.Typer(
 )
 # Off a terminal (CI logs, pipes) rich would wrap tables at 80 columns; leaderboards are wide.
 console = Console(width=None if sys.stdout.isatty() else 180)
-err_console = Console(stderr=True)
+err_console = Console(stderr=True, soft_wrap=True)
 
 DEFAULT_STORE = Path("lwbench-results/results.sqlite")
 DEFAULT_DATASET = "sim"

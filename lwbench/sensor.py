@@ -227,7 +227,8 @@ class SensorModel:
         else:
             from scipy.signal import find_peaks
 
-            lo, hi = elev.min() - bin_deg, elev.max() + bin_deg
+            # Margins so the outermost beams are interior peaks (find_peaks ignores the edges).
+            lo, hi = elev.min() - 10 * bin_deg, elev.max() + 10 * bin_deg
             hist, edges = np.histogram(elev, bins=max(8, int((hi - lo) / bin_deg)), range=(lo, hi))
             smooth = np.convolve(hist, np.ones(3) / 3, mode="same")
             # Real beams are >= ~0.3 deg apart (HDL-64E: 1/3 deg); closer peaks are one beam whose

@@ -1,0 +1,80 @@
+"""Each core metric against a case computed by hand."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from lwbench import CodecKind, Evaluation, Frame
+from lwbench_metrics import GeometryMetric, RangeImageMetric, RuntimeMetric, SizeMetric
+
+
+def _ev(frame: Frame, decoded: np.ndarray, payload: bytes = b"x" * 100, **kw) -> Evaluation:
+    return Evaluation(frame, payload, np.asarray(decoded, np.float32), CodecKind.REPRESENTATION,
+                      kw.get("timings", {"encode_ms": 2.0, "decode_ms": 1.0}), kw.get("peak_mb"))
+
+
+def test_size_metrics(tiny_sensor):
+    frame = Frame(np.ones((50, 3), np.float32), tiny_sensor)
+    m = SizeMetric().compute(_ev(frame, np.ones((20, 3)), b"x" * 120))
+    assert m["bytes"] == 120
+    assert m["ratio"] == pytest.approx(600 / 120)
+    assert m["bits_per_point"] == pytest.approx(8 * 120 / 50)
+    assert m["link_kbps"] == pytest.approx(120 * 10 / 1000)  # 10 Hz sensor
+    assert (m["points_in"], m["points_out"]) == (50, 20)
+
+
+def test_range_rmsd_coverage_and_false_returns(tiny_sensor):
+    dirs = tiny_sensor.ray_directions()
+    # Original: 4 returns at 10 m in cells (0,0) (0,1) (1,0) (1,1).
+    cells_p = [(0, 0), (0, 1), (1, 0), (1, 1)]
+    p = np.array([dirs[c] * 10.0 for c in cells_p])
+    # Decoded: 3 of them at 10.3, 9.6, 10.0 m and one return in an empty cell (3,5).
+    q = np.array([dirs[0, 0] * 10.3, dirs[0, 1] * 9.6, dirs[1, 0] * 10.0, dirs[3, 5] * 4.0])
+    m = RangeImageMetric().compute(_ev(Frame(p.astype(np.float32), tiny_sensor), q))
+    assert m["range_rmsd"] == pytest.approx(math.sqrt((0.3**2 + 0.4**2 + 0) / 3), rel=1e-5)
+    assert m["coverage"] == pytest.approx(3 / 4)
+    assert m["false_returns"] == pytest.approx(1 / 4)
+
+
+def test_range_metrics_of_an_empty_decode_are_undefined_not_nan(tiny_sensor):
+    p = tiny_sensor.ray_directions()[0, :3] * 5.0
+    m = RangeImageMetric().compute(_ev(Frame(p.astype(np.float32), tiny_sensor), np.zeros((0, 3))))
+    assert m == {"range_rmsd": None, "coverage": 0.0, "false_returns": None}
+
+
+def test_chamfer_hausdorff_and_d1_psnr_by_hand(tiny_sensor):
+    # P: two points; Q: P shifted by 0.1 m in x, plus one outlier 1 m from P[1].
+    p = np.array([[0, 0, 0], [5, 0, 0]], np.float32)
+    q = np.array([[0.1, 0, 0], [5.1, 0, 0], [5, 1, 0]], np.float32)
+    m = GeometryMetric(peak=10.0).compute(_ev(Frame(p, tiny_sensor), q))
+    d_pq = [0.1, 0.1]
+    d_qp = [0.1, 0.1, 1.0]
+    assert m["chamfer"] == pytest.approx((np.mean(d_pq) + np.mean(d_qp)) / 2, rel=1e-5)
+    assert m["hausdorff"] == pytest.approx(1.0, rel=1e-6)
+    mse_worse = np.mean(np.square(d_qp))
+    assert m["d1_psnr"] == pytest.approx(10 * math.log10(3 * 100 / mse_worse), rel=1e-4)
+
+
+def test_d2_ignores_error_along_the_surface():
+    # A dense plane z=0; the decoded cloud slides every point 2 cm along the plane.
+    xs, ys = np.meshgrid(np.linspace(-5, 5, 101), np.linspace(-5, 5, 101))
+    p = np.column_stack([xs.ravel(), ys.ravel(), np.zeros(xs.size)]).astype(np.float32)
+    from lwbench import get_sensor
+
+    m = GeometryMetric().compute(_ev(Frame(p, get_sensor("vlp16")), p + [0.02, 0, 0]))
+    assert m["d2_psnr"] > m["d1_psnr"] + 20
+
+
+def test_lossless_decode_has_infinite_psnr_and_zero_distance(vlp16_frame):
+    m = GeometryMetric().compute(_ev(vlp16_frame, vlp16_frame.points))
+    assert m["chamfer"] == 0 and m["hausdorff"] == 0
+    assert math.isinf(m["d1_psnr"]) and math.isinf(m["d2_psnr"])
+
+
+def test_runtime_metric_reports_what_the_runner_measured(tiny_sensor):
+    f = Frame(np.ones((3, 3), np.float32), tiny_sensor)
+    m = RuntimeMetric().compute(_ev(f, f.points, timings={"encode_ms": 5.0, "decode_ms": 2.0}, peak_mb=3.5))
+    assert m == {"encode_ms": 5.0, "decode_ms": 2.0, "select_ms": None, "peak_mb": 3.5}

@@ -1,0 +1,83 @@
+from __future__ import annotations
+
+import struct
+import zlib
+
+import numpy as np
+import pytest
+
+from lwbench import Payload, PayloadError, pack_points, unpack_points
+from lwbench.payload import FORMAT_VERSION
+
+
+def _payload() -> bytes:
+    pose = np.eye(4)
+    pose[:3, 3] = [1.0, -2.0, 0.5]
+    return Payload("raw", {"k": 1, "sensor": {"preset": "vlp16"}}, b"\x01\x02\x03body", pose).to_bytes()
+
+
+def test_round_trip_preserves_every_field():
+    p = Payload.from_bytes(_payload())
+    assert p.codec_id == "raw" and p.meta == {"k": 1, "sensor": {"preset": "vlp16"}}
+    assert p.body == b"\x01\x02\x03body"
+    np.testing.assert_allclose(p.pose[:3, 3], [1.0, -2.0, 0.5], atol=1e-6)
+    assert Payload.from_bytes(p.to_bytes()).to_bytes() == p.to_bytes()
+
+
+@pytest.mark.parametrize("cut", [1, 4, 10, 20])
+def test_truncated_payload_raises(cut):
+    with pytest.raises(PayloadError):
+        Payload.from_bytes(_payload()[:-cut])
+
+
+def test_every_single_flipped_byte_is_detected():
+    data = bytearray(_payload())
+    for i in range(len(data)):
+        bad = bytearray(data)
+        bad[i] ^= 0x40
+        with pytest.raises(PayloadError):
+            Payload.from_bytes(bytes(bad))
+
+
+def test_wrong_magic_raises():
+    with pytest.raises(PayloadError, match="not an lwbench payload"):
+        Payload.from_bytes(b"PK\x03\x04" + _payload()[4:])
+
+
+def test_future_version_raises_even_with_a_valid_checksum():
+    data = bytearray(_payload()[:-4])
+    data[4] = FORMAT_VERSION + 1
+    data += struct.pack("<I", zlib.crc32(bytes(data)))
+    with pytest.raises(PayloadError, match="version"):
+        Payload.from_bytes(bytes(data))
+
+
+def test_payload_for_another_codec_raises():
+    with pytest.raises(PayloadError, match="not 'gmm'"):
+        Payload.from_bytes(_payload(), expect_codec="gmm")
+
+
+def test_point_serializer_float32_is_lossless():
+    pts = np.random.default_rng(1).normal(0, 20, (1000, 3)).astype(np.float32)
+    body = pack_points(pts)
+    assert len(body) == 5 + 12 * 1000
+    np.testing.assert_array_equal(unpack_points(body), pts)
+
+
+@pytest.mark.parametrize("step", [0.001, 0.01, 0.05])
+def test_point_serializer_quantized_error_is_at_most_half_a_step(step):
+    pts = np.random.default_rng(2).uniform(-60, 60, (5000, 3)).astype(np.float32)
+    back = unpack_points(pack_points(pts, "quantized", step))
+    assert np.abs(back - pts).max() <= step / 2 + 1e-5 * 60
+
+
+def test_quantized_points_use_16_bits_when_the_extent_allows():
+    pts = np.random.default_rng(3).uniform(0, 10, (100, 3)).astype(np.float32)
+    assert len(pack_points(pts, "quantized", 0.01)) == 5 + 17 + 6 * 100
+    assert len(pack_points(pts, "quantized", 0.0001)) == 5 + 17 + 12 * 100
+
+
+def test_point_body_of_wrong_size_raises():
+    body = pack_points(np.zeros((10, 3), np.float32))
+    with pytest.raises(PayloadError):
+        unpack_points(body[:-1])
