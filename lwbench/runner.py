@@ -195,11 +195,14 @@ def evaluate_frame(
             extra["device"] = device
             ev = Evaluation(frame, payload, decoded, codec_cls.kind, timings, peak_mb, device, frame_cache)
             values: dict[str, float | None] = {}
-            for m in metrics:
-                try:
-                    values.update(m.compute(ev))
-                except Exception as exc:  # noqa: BLE001
-                    raise LwbenchError(f"metric {m.name}: {type(exc).__name__}: {exc}") from exc
+            watch = Stopwatch()
+            with watch.time("metrics_ms"):
+                for m in metrics:
+                    try:
+                        values.update(m.compute(ev))
+                    except Exception as exc:  # noqa: BLE001
+                        raise LwbenchError(f"metric {m.name}: {type(exc).__name__}: {exc}") from exc
+            extra.update(watch.ms)
             row = _row(spec, dataset_id, frame_index, cfg, registry, seed, "ok", values, extra, None)
             if decoded_dir is not None:
                 np.save(Path(decoded_dir) / f"{row.key}.npy", decoded)
