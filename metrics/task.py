@@ -1,0 +1,159 @@
+"""Task metrics over a whole sequence: localization, odometry drift and occupancy fidelity.
+
+Registered through the ``task_metrics`` entry point; the runner calls each once per codec
+configuration when the dataset has ground-truth poses. Every number is computed with the fixed
+settings in each class's ``params`` (stored with the result).
+
+Ids (DESIGN.md): ``ate_rmse``, ``ate_mean`` (m), ``rot_err_deg``, ``rpe_trans`` (m),
+``rpe_rot_deg``, ``map_points``, ``map_share``, ``icp_failures``, ``occ_iou``, ``occ_precision``,
+``occ_recall`` (occupancy at 0.2 m). Added: ``mape`` (PocoNet's combined error, mean
+``|E - I|_F``), the ``odom_*`` odometry variants, and ``occ_*_005`` at 0.05 m.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from typing import Any
+
+import numpy as np
+from lwbench_metrics.localization import (
+    ICP_PARAMS,
+    build_map,
+    pose_metrics,
+    track_against_map,
+    track_odometry,
+)
+from lwbench_metrics.occupancy import OCCUPANCY_PARAMS, compare_occupancy, occupied_voxels
+
+from lwbench import SequenceEvaluation, SequenceMetric, hookimpl
+
+__all__ = ["LocalizationMetric", "OdometryMetric", "OccupancyMetric", "lwbench_metrics"]
+
+# What depends only on the originals is the same for every codec configuration of a run:
+# cache it per (dataset identity, frames, settings), a few entries only.
+_CACHE: OrderedDict[tuple, Any] = OrderedDict()
+_CACHE_SIZE = 8
+
+
+def _cached(key: tuple, compute):
+    if key in _CACHE:
+        _CACHE.move_to_end(key)
+        return _CACHE[key]
+    value = compute()
+    _CACHE[key] = value
+    while len(_CACHE) > _CACHE_SIZE:
+        _CACHE.popitem(last=False)
+    return value
+
+
+def _seq_key(seq: SequenceEvaluation) -> tuple:
+    return (seq.dataset.identity(), tuple(seq.frame_indices))
+
+
+def _ground_truth(seq: SequenceEvaluation) -> tuple[np.ndarray, int]:
+    """Ground-truth poses ``(n, 4, 4)`` and the total number of original points."""
+
+    def compute():
+        frames = [seq.original(i) for i in range(len(seq.frame_indices))]
+        if any(f.pose is None for f in frames):
+            raise ValueError(f"{seq.dataset.name}: sequence metrics need ground-truth poses on every frame")
+        return np.stack([f.pose for f in frames]), sum(len(f.points) for f in frames)
+
+    return _cached(("gt",) + _seq_key(seq), compute)
+
+
+class LocalizationMetric(SequenceMetric):
+    """PocoNet §IV-B: decoded scans tracked by point-to-plane ICP against a map of decoded scans."""
+
+    name = "localization"
+    ids = (
+        "ate_rmse",
+        "ate_mean",
+        "rot_err_deg",
+        "mape",
+        "rpe_trans",
+        "rpe_rot_deg",
+        "icp_failures",
+        "map_points",
+        "map_share",
+    )
+    description = (
+        "Map of decoded scans at GT poses (voxel grid filter), each decoded scan tracked against it "
+        "with point-to-plane ICP from the previous estimate; ATE/rotation/mAPE over tracked frames, "
+        "RPE rmse per frame, map size and its share of all original points."
+    )
+    params = dict(ICP_PARAMS)
+
+    def compute(self, seq: SequenceEvaluation) -> dict[str, float | None]:
+        gt, n_original = _ground_truth(seq)
+        world_map = build_map(seq.decoded, gt, self.params)
+        out = pose_metrics(gt, track_against_map(seq.decoded, gt[0], world_map, self.params))
+        out["map_points"] = float(len(world_map.points))
+        out["map_share"] = len(world_map.points) / n_original if n_original else None
+        return out
+
+
+class OdometryMetric(SequenceMetric):
+    """Scan-to-scan ICP drift on the decoded stream alone (no map)."""
+
+    name = "odometry"
+    ids = (
+        "odom_ate_rmse",
+        "odom_ate_mean",
+        "odom_rot_err_deg",
+        "odom_mape",
+        "odom_rpe_trans",
+        "odom_rpe_rot_deg",
+        "odom_icp_failures",
+    )
+    description = (
+        "Decoded scans registered to the previous decoded scan (point-to-plane ICP, constant-velocity "
+        "initial guess) and chained from the first GT pose: the drift of a receiver of the stream."
+    )
+    params = dict(ICP_PARAMS)
+
+    def compute(self, seq: SequenceEvaluation) -> dict[str, float | None]:
+        gt, _ = _ground_truth(seq)
+        return pose_metrics(gt, track_odometry(seq.decoded, gt[0], self.params), prefix="odom_")
+
+
+def _suffix(voxel: float, first: bool) -> str:
+    return "" if first else "_" + f"{voxel:.2f}".replace(".", "").lstrip("0").rjust(3, "0")
+
+
+class OccupancyMetric(SequenceMetric):
+    """Log-odds voxel occupancy (hits and ray-cast free space) of decoded vs original scans."""
+
+    name = "occupancy"
+    params = dict(OCCUPANCY_PARAMS)
+    ids = tuple(
+        f"occ_{m}{_suffix(v, i == 0)}"
+        for i, v in enumerate(OCCUPANCY_PARAMS["resolutions"])
+        for m in ("iou", "precision", "recall")
+    )
+    description = (
+        "Voxel occupancy of the decoded vs the original sequence at GT poses (log-odds map, free space "
+        "from the rays): IoU, precision, recall of occupied voxels; unsuffixed at 0.2 m, _005 at 0.05 m."
+    )
+
+    def compute(self, seq: SequenceEvaluation) -> dict[str, float | None]:
+        gt, _ = _ground_truth(seq)
+        sensor = seq.original(0).sensor
+        p = self.params
+        out: dict[str, float | None] = {}
+        for i, v in enumerate(p["resolutions"]):
+
+            def original_map(v=v):
+                scans = [seq.original(k).points for k in range(len(seq.frame_indices))]
+                return occupied_voxels(scans, gt, sensor, v, p["l_hit"], p["l_miss"])
+
+            ref = _cached(("occ", v, p["l_hit"], p["l_miss"]) + _seq_key(seq), original_map)
+            dec = occupied_voxels(seq.decoded, gt, sensor, v, p["l_hit"], p["l_miss"])
+            for name, value in compare_occupancy(ref, dec).items():
+                out[f"occ_{name}{_suffix(v, i == 0)}"] = value
+        return out
+
+
+@hookimpl
+def lwbench_metrics():
+    return [LocalizationMetric, OdometryMetric, OccupancyMetric]
