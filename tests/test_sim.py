@@ -180,3 +180,30 @@ def test_registered_as_a_dataset():
 
     reg = new_registry()
     assert reg.dataset("sim") is SimDataset
+
+
+def _icp(source, target, init: np.ndarray) -> np.ndarray:
+    import open3d as o3d
+
+    def cloud(f):
+        pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(f.points.astype(np.float64)))
+        pc = pc.voxel_down_sample(0.25)
+        pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=0.8, max_nn=30))
+        return pc
+
+    est = o3d.pipelines.registration.TransformationEstimationPointToPlane()
+    crit = o3d.pipelines.registration.ICPConvergenceCriteria(max_iteration=60)
+    result = o3d.pipelines.registration.registration_icp(cloud(source), cloud(target), 1.0, init, est, crit)
+    return result.transformation
+
+
+@pytest.mark.parametrize("i", [20, 105])  # a straight, and mid-corner (4.3 deg yaw per frame)
+def test_icp_between_consecutive_urban_scans_recovers_the_motion(i):
+    ds = SimDataset(scene="urban", frames=0, cache=False)
+    a, b = ds[i], ds[i + 1]
+    truth = np.linalg.inv(a.pose) @ b.pose  # scan b in scan a's frame
+    assert np.linalg.norm(truth[:3, 3]) == pytest.approx(1.0, abs=0.01)  # 10 m/s at 10 Hz
+    est = _icp(b, a, np.eye(4))  # no prior: the whole metre must be found by ICP
+    err = np.linalg.inv(truth) @ est
+    assert np.linalg.norm(err[:3, 3]) < 0.05
+    assert np.degrees(np.arccos(np.clip((np.trace(err[:3, :3]) - 1) / 2, -1, 1))) < 0.5

@@ -114,9 +114,11 @@ class MeshBuilder:
         self._n += len(vertices)
 
     def boxes(
-        self, centers: np.ndarray, sizes: np.ndarray, yaws: np.ndarray | float, material: Material
+        self, centers: np.ndarray, sizes: np.ndarray, yaws: np.ndarray | float,
+        material: Material | np.ndarray,
     ) -> None:
-        """Oriented boxes: ``centers`` and ``sizes`` ``(B, 3)``, rotated by ``yaws`` about z."""
+        """Oriented boxes: ``centers`` and ``sizes`` ``(B, 3)``, rotated by ``yaws`` about z;
+        ``material`` is one :class:`Material` or ``(B, 2)`` (reflectivity, dropout) per box."""
         centers = np.asarray(centers, dtype=np.float64).reshape(-1, 3)
         if len(centers) == 0:
             return
@@ -125,6 +127,9 @@ class MeshBuilder:
         local = _BOX_CORNERS[None] * sizes[:, None, :]
         world = np.einsum("bij,bkj->bki", _yaw_matrices(yaws), local) + centers[:, None, :]
         tris = _BOX_TRIS[None] + 8 * np.arange(len(centers))[:, None, None]
+        if not isinstance(material, Material):
+            per_box = np.asarray(material, dtype=np.float64).reshape(-1, 2)
+            material = np.repeat(per_box, len(_BOX_TRIS), axis=0)
         self.add(world.reshape(-1, 3), tris.reshape(-1, 3), material)
 
     def cylinders(
