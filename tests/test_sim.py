@@ -53,6 +53,22 @@ def test_tunnel_vlp16_scan_is_within_the_sensor_limits():
         assert np.all(np.diff(f.time) >= 0)  # firing order
 
 
+@pytest.mark.parametrize(
+    "scene, sensor, low",
+    [("urban", "hdl64e", 90_000), ("indoor", "vlp16", 30_000)],
+)
+def test_every_scene_scans_within_the_sensor_limits(scene, sensor, low):
+    ds = SimDataset(scene=scene, frames=0, cache=False)
+    assert ds.sensor.name == sensor
+    for i in (0, len(ds) // 2, len(ds) - 1):
+        f = ds[i]
+        r = np.linalg.norm(f.points, axis=1)
+        assert low <= len(f) <= ds.sensor.n_rays
+        assert r.min() >= ds.sensor.min_range and r.max() <= ds.sensor.max_range
+    again = SimDataset(scene=scene, frames=0, cache=False)[len(ds) - 1]
+    assert np.array_equal(again.points, f.points)
+
+
 def test_points_lie_on_their_beams_rays():
     ds = SimDataset(frames=2, noise=0.0, dropout=0.0, cache=False)
     sensor = ds.sensor

@@ -13,6 +13,7 @@ from collections.abc import Callable
 import numpy as np
 
 from .base import Scene
+from .indoor import build_indoor
 from .tunnel import build_tunnel
 from .urban import build_urban
 
@@ -21,4 +22,5 @@ __all__ = ["SCENES", "Scene"]
 SCENES: dict[str, Callable[[np.random.Generator], Scene]] = {
     "tunnel": build_tunnel,
     "urban": build_urban,
+    "indoor": build_indoor,
 }
