@@ -1,0 +1,29 @@
+#!/bin/bash
+# Rate-distortion runs behind docs/codecs.md: draco, rangeimage, voxel (+ raw, and VSGP for
+# context) on the simulated tunnel and the real Ouster / KITTI samples.
+#   STORE=/tmp/rd.sqlite bash docs/codecs_rd.sh
+#   lwbench leaderboard --store /tmp/rd.sqlite --format md --columns bytes,ratio,range_rmsd,coverage,chamfer,encode_ms,decode_ms
+set -euo pipefail
+S=${STORE:-/tmp/rd.sqlite}
+L=${LWBENCH:-/work/venv/bin/lwbench}
+REAL=${REAL:-/work/shared/data/real}
+run() {  # $1 = dataset; the rest: dataset options
+  ds=$1; shift
+  $L run --dataset "$ds" "$@" --no-sequence-metrics --store "$S" \
+     --codec raw --codec draco --param draco.quantization_bits=11,12,14,16 \
+     --codec rangeimage --param rangeimage.step=0.05,0.02,0.01 \
+     --codec voxel --param voxel.voxel_size=1.0,0.5,0.2,0.1 >/dev/null
+  $L run --dataset "$ds" "$@" --no-sequence-metrics --store "$S" \
+     --codec rangeimage --param rangeimage.mode=lossless --param rangeimage.refine=beam,none >/dev/null
+  $L run --dataset "$ds" "$@" --no-sequence-metrics --store "$S" \
+     --codec rangeimage --param rangeimage.refine=none \
+     --codec voxel --param voxel.encoding=quantized --param voxel.quant_step=0.01 >/dev/null
+}
+run sim --frames 5
+run "$REAL/ouster_os1-128_seq3"
+run "$REAL/kitti00_frames0-1" --dataset-param sensor=hdl64e
+# VSGP (another plugin, at its defaults) for context: seconds per frame, so fewer frames.
+$L run --dataset sim --frames 5 --no-sequence-metrics --store "$S" --codec vsgp >/dev/null
+$L run --dataset "$REAL/ouster_os1-128_seq3" --frames 1 --no-sequence-metrics --store "$S" --codec vsgp >/dev/null
+$L run --dataset "$REAL/kitti00_frames0-1" --dataset-param sensor=hdl64e --frames 1 --no-sequence-metrics \
+   --store "$S" --codec vsgp >/dev/null
