@@ -27,6 +27,10 @@ class Scene:
     sensor: str
     speed: float
     follow_pitch: bool = True
+    # Boxes ``((xmin, ymin, zmin), (xmax, ymax, zmax))`` in the sensor frame that the vehicle
+    # itself occupies: rays into them never reach the scene (roof, hood and trunk under a
+    # car-mounted LiDAR hide part of its lowest beams, as in every KITTI scan).
+    ego_boxes: tuple[tuple[tuple[float, float, float], tuple[float, float, float]], ...] = ()
 
 
 def smooth_noise(rng: np.random.Generator, shape: tuple[int, int], sigma: tuple[float, float],

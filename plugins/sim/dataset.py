@@ -18,12 +18,12 @@ import numpy as np
 from lwbench import Dataset, Frame, Param, ParameterError, SensorModel, get_sensor
 
 from .cache import ScanCache
-from .raycast import Raycaster, Scan
+from .raycast import Raycaster, Scan, ego_mask
 from .scenes import SCENES, Scene
 
 # Bump whenever a change alters generated scans: it is part of the cache key and of identity(),
 # so results computed on an older simulator are never mistaken for results on the new one.
-SIM_VERSION = "2"
+SIM_VERSION = "3"
 
 
 @functools.lru_cache(maxsize=4)
@@ -86,6 +86,7 @@ class SimDataset(Dataset):
             raise ParameterError(f"sim: scene {cfg['scene']!r} is not available; have {sorted(SCENES)}")
         self.world, self._caster = _world(cfg["scene"], cfg["seed"], os.getpid())
         self.sensor = _resolve_sensor(cfg["sensor"], self.world)
+        self._blocked = ego_mask(self._caster.sensor_rays(self.sensor)[0], self.world.ego_boxes)
         self.speed = cfg["speed"] or self.world.speed
         self.step = self.speed / self.sensor.rate_hz
         s0 = self.world.s_start + cfg["start"]
@@ -142,7 +143,7 @@ class SimDataset(Dataset):
             column_poses = self.world.path.poses(s, self.world.sensor_height, self.world.follow_pitch)
         return self._caster.scan(
             self.sensor, self.poses[index], rng, noise=cfg["noise"], dropout=cfg["dropout"],
-            column_poses=column_poses,
+            column_poses=column_poses, blocked=self._blocked,
         )
 
     def identity(self) -> str:

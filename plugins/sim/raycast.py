@@ -37,6 +37,21 @@ class Scan:
     time: np.ndarray  # (N,) float32, seconds from the start of the sweep
 
 
+def ego_mask(directions: np.ndarray, boxes) -> np.ndarray:
+    """Which rays (from the sensor origin along ``directions``) hit one of the axis-aligned
+    ``boxes`` ``((lo_xyz), (hi_xyz))`` in the sensor frame: a slab test, once per sensor."""
+    blocked = np.zeros(len(directions), dtype=bool)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / directions
+        for lo, hi in boxes:
+            t1 = np.asarray(lo) * inv
+            t2 = np.asarray(hi) * inv
+            near = np.nanmax(np.minimum(t1, t2), axis=1)
+            far = np.nanmin(np.maximum(t1, t2), axis=1)
+            blocked |= (near <= far) & (far > 0)
+    return blocked
+
+
 class Raycaster:
     """A mesh loaded into Open3D's ray-casting scene, ready to scan with any sensor model."""
 
@@ -52,7 +67,7 @@ class Raycaster:
         )
         self._rays: dict[SensorModel, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
-    def _sensor_rays(self, sensor: SensorModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def sensor_rays(self, sensor: SensorModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Directions in firing order, and each ray's ring and column (cached per sensor)."""
         if sensor not in self._rays:
             dirs = sensor.ray_directions().transpose(1, 0, 2).reshape(-1, 3)
@@ -69,13 +84,15 @@ class Raycaster:
         noise: float = 0.01,
         dropout: float = 0.0,
         column_poses: np.ndarray | None = None,
+        blocked: np.ndarray | None = None,
     ) -> Scan:
         """One sweep from ``pose`` (4x4 sensor -> world).
 
         ``column_poses`` ``(n_azimuth, 4, 4)``, when given, is the sensor pose at each column's
         firing time (motion distortion); points are then expressed in ``pose``'s frame.
+        ``blocked`` (one flag per ray, firing order) marks rays the vehicle itself hides.
         """
-        dirs, ring, col = self._sensor_rays(sensor)
+        dirs, ring, col = self.sensor_rays(sensor)
         n = len(dirs)
         rays = np.empty((n, 6), dtype=np.float32)
         if column_poses is None:
@@ -96,6 +113,8 @@ class Raycaster:
         gauss = rng.standard_normal(n, dtype=np.float32)
         uniform = rng.random(n, dtype=np.float32)
         valid = np.isfinite(t_hit)
+        if blocked is not None:
+            valid &= ~blocked
         idx = np.flatnonzero(valid)
         prim = hit["primitive_ids"].numpy()[idx].astype(np.int64)
         r = t_hit[idx] + np.float32(noise) * gauss[idx]

@@ -1,0 +1,76 @@
+"""Realism check: simulated scans against a real one, printed as Markdown (for ``docs/sim.md``).
+
+    python -m lwbench_plugins.sim.realism [--kitti PATH_TO_KITTI_BIN] [--every N]
+
+Urban (HDL-64E) is compared with a real KITTI HDL-64E scan: points per scan, range deciles and
+the share of ground points, defined the same way for both as points less than 0.25 m above the
+ground plane under the sensor, i.e. ``z < -(1.73 - 0.25) m`` in the sensor frame (KITTI's
+Velodyne is mounted 1.73 m above the road; the simulated car uses the same height). The
+tunnel's points per scan are compared with the VSGP paper's "around 10K to 50K points" per
+observation.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from lwbench.io import read_kitti_bin
+
+from .dataset import SimDataset
+
+KITTI = Path(__file__).resolve().parents[2].parent / "shared/data/real/kitti00_frames0-1/000000.bin"
+GROUND_Z = -(1.73 - 0.25)
+DECILES = (10, 20, 30, 40, 50, 60, 70, 80, 90)
+
+
+def scan_stats(points: np.ndarray) -> dict[str, float]:
+    r = np.linalg.norm(points, axis=1)
+    return {
+        "points": float(len(points)),
+        "ground": float(np.mean(points[:, 2] < GROUND_Z)),
+        "above": float(np.mean(points[:, 2] > 0)),
+        "far20": float(np.mean(r > 20)),
+        **{f"r{q}": float(v) for q, v in zip(DECILES, np.percentile(r, DECILES), strict=True)},
+    }
+
+
+def _row(name: str, stats: list[dict[str, float]]) -> str:
+    m = {k: float(np.mean([s[k] for s in stats])) for k in stats[0]}
+    deciles = " / ".join(f"{m[f'r{q}']:.1f}" for q in DECILES)
+    return (
+        f"| {name} | {m['points']:,.0f} | {deciles} | {100 * m['ground']:.1f} % | "
+        f"{100 * m['above']:.1f} % | {100 * m['far20']:.1f} % |"
+    )
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--kitti", type=Path, default=KITTI, help="a KITTI HDL-64E .bin scan")
+    ap.add_argument("--every", type=int, default=10, help="use every N-th simulated frame")
+    args = ap.parse_args(argv)
+
+    print("| scans | points/scan | range deciles 10..90 % (m) | ground | z > 0 | r > 20 m |")
+    print("|---|---|---|---|---|---|")
+    if args.kitti.exists():
+        print(_row(f"KITTI 00 `{args.kitti.name}` (real)", [scan_stats(read_kitti_bin(args.kitti).points)]))
+    urban = SimDataset(scene="urban", frames=0, cache=False)
+    idx = range(0, len(urban), args.every)
+    print(_row(f"sim urban, HDL-64E, {len(idx)} scans", [scan_stats(urban.simulate(i).points) for i in idx]))
+
+    print()
+    print("| scene | sensor | scans | points/scan min / median / mean / max |")
+    print("|---|---|---|---|")
+    for scene in ("tunnel", "indoor", "urban"):
+        ds = SimDataset(scene=scene, frames=0, cache=False)
+        counts = np.array([len(ds.simulate(i).points) for i in range(0, len(ds), max(1, args.every // 2))])
+        print(
+            f"| {scene} | {ds.sensor.name} ({ds.sensor.n_rays:,} rays) | {len(counts)} of {len(ds)} | "
+            f"{counts.min():,} / {np.median(counts):,.0f} / {counts.mean():,.0f} / {counts.max():,} |"
+        )
+
+
+if __name__ == "__main__":
+    main()
