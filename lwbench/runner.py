@@ -19,7 +19,7 @@ from __future__ import annotations
 import itertools
 import os
 import traceback
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from multiprocessing import get_context
@@ -165,19 +165,18 @@ def evaluate_frame(
     configs: list[CodecConfig],
     seed: int,
     decoded_dir: str | None,
-) -> list[ResultRow]:
-    """All requested configurations on one frame; shares the frame's KD-tree, normals and
-    range image between them."""
+) -> Iterator[ResultRow]:
+    """All requested configurations on one frame, one row at a time (so the caller can store
+    each as soon as it exists); the frame's KD-tree, normals and range image are shared."""
     registry = state.registry
-    rows: list[ResultRow] = []
     try:
         dataset = state.datasets.get(spec.label) or state.datasets.setdefault(spec.label, spec.build(registry))
         frame = dataset[frame_index]
     except Exception as exc:  # noqa: BLE001 - a bad scan fails its rows, not the run
         err = f"loading frame {frame_index}: {type(exc).__name__}: {exc}"
         for cfg in configs:
-            rows.append(_row(spec, dataset_id, frame_index, cfg, registry, seed, "failed", {}, {}, err))
-        return rows
+            yield _row(spec, dataset_id, frame_index, cfg, registry, seed, "failed", {}, {}, err)
+        return
     frame_cache: dict[str, Any] = {}
     metrics = [cls() for cls in registry.frame_metrics.values()]
     for cfg in configs:
@@ -210,8 +209,7 @@ def evaluate_frame(
             extra["traceback"] = traceback.format_exc(limit=6)
             err = f"{type(exc).__name__}: {exc}"
             row = _row(spec, dataset_id, frame_index, cfg, registry, seed, "failed", {}, extra, err)
-        rows.append(row)
-    return rows
+        yield row
 
 
 def _row(spec, dataset_id, frame_index, cfg, registry, seed, status, metrics, extra, error) -> ResultRow:
@@ -251,7 +249,7 @@ def _init_worker(threads: int) -> None:
 
 def _worker_task(args: tuple) -> list[ResultRow]:
     assert _STATE is not None
-    return evaluate_frame(_STATE, *args)
+    return list(evaluate_frame(_STATE, *args))
 
 
 # --------------------------------------------------------------------------------------------
@@ -317,7 +315,7 @@ class Runner:
         done = 0
         decoded_dir = str(self.decoded_dir) if self.decoded_dir else None
 
-        def record(rows: list[ResultRow]) -> None:
+        def record(rows: Iterable[ResultRow]) -> None:
             nonlocal done
             for row in rows:
                 self.store.put(row)
