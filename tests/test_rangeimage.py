@@ -249,3 +249,16 @@ def test_corrupt_beam_table_raises_payload_error() -> None:
     # The same body read as unrefined is the wrong size.
     with pytest.raises(PayloadError):
         RangeImageCodec().decode(_rewrap(data, refine="none"))
+
+
+def test_quantized_ranges_stay_inside_the_sensor_window() -> None:
+    s = get_sensor("vlp16")  # 0.1 .. 10 m
+    ranges = np.full(s.shape, 9.99)
+    ranges[:, ::2] = 0.12
+    frame = Frame(s.unproject(ranges), s)
+    decoded = RangeImageCodec(step=0.05).decode(RangeImageCodec(step=0.05).encode(frame))
+    assert len(decoded) == len(frame)
+    # Rounded to 10.00 / 0.10 m, the points must still be inside the window when re-projected.
+    again = s.project(decoded).ranges
+    assert (again > 0).all()
+    assert np.abs(again - ranges).max() <= 0.025 + 1e-5

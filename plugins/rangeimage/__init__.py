@@ -169,7 +169,13 @@ class RangeImageCodec(RepresentationCodec):
             step = self.meta_field(payload, "step", float)
             if not step > 0:
                 raise PayloadError(f"rangeimage payload: step must be positive, got {step}")
-            ranges = (values * step).astype(np.float32)
+            ranges = values * step
+            # Rounding can carry a return just past the sensor's range window (9.99 m -> 10.00 m
+            # at a 5 cm step, 10.000000000000002 in float), where a re-projection would drop it.
+            # The original lay inside the window, so clamping keeps the error within step / 2.
+            eps = 1e-6 * sensor.max_range
+            inside = np.clip(ranges, sensor.min_range + eps, sensor.max_range - eps)
+            ranges = np.where(values > 0, inside, 0.0).astype(np.float32)
         return sensor, ranges, table
 
 
