@@ -62,7 +62,7 @@ class RangeImageCodec(RepresentationCodec):
     """Range image on the sensor's grid, quantized (or exact float32), predicted, zstd-coded."""
 
     name = "rangeimage"
-    version = "1"
+    version = "2"
     description = "beam x azimuth range image, quantized ranges, row-delta + zstd"
     params = (
         Param("mode", "str", "quantized", "quantized (error <= step/2) or lossless (exact float32 image)",
