@@ -34,6 +34,7 @@ __all__ = [
     "eigvec_sym6",
     "local_max",
     "radius_nms",
+    "nms_levels",
     "voxel_downsample",
 ]
 
@@ -179,12 +180,17 @@ def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 
 def local_max(response: np.ndarray, nb: Neighbourhood) -> np.ndarray:
-    """True where no valid neighbour has a strictly larger response (PCL and Open3D's NMS).
+    """True where no valid neighbour has a larger response (PCL's and Open3D's NMS).
 
-    Ties count as maxima, exactly as ``IsLocalMaxima`` in Open3D and the Harris NMS in PCL.
+    PCL and Open3D keep exact ties; here a tie goes to the lower index, so that a plateau
+    (a perfectly regular synthetic surface, duplicated points) yields one keypoint per
+    neighbourhood rather than all of its points. Real scans have no exact ties away from
+    duplicates, so the keypoints are the same.
     """
-    nbr = np.where(nb.valid, response[nb.idx], -np.inf)
-    return response >= nbr.max(axis=1)
+    r = response[:, None]
+    nbr = response[nb.idx]
+    beaten = (nbr > r) | ((nbr == r) & (nb.idx < np.arange(len(response))[:, None]))
+    return ~(beaten & nb.valid).any(axis=1)
 
 
 def radius_nms(points: np.ndarray, response: np.ndarray, candidates: np.ndarray, radius: float) -> np.ndarray:
@@ -212,6 +218,28 @@ def radius_nms(points: np.ndarray, response: np.ndarray, candidates: np.ndarray,
     out = candidates.copy()
     out[cand[beaten]] = False
     return out
+
+
+def nms_levels(response: np.ndarray, nb: Neighbourhood, eligible: np.ndarray) -> np.ndarray:
+    """Top-up tiers: the NMS level at which each eligible point first becomes a local maximum.
+
+    Level 1 is a local maximum over its nearest ``K/2`` neighbours, level 2 over ``K/4``, ...
+    down to 2; eligible points that never are get the last level + 1, others + 2. When the
+    detector's own keypoints (NMS over the full ball) fall short of the budget, filling up level
+    by level keeps the extra points spread over the scan like keypoints of a smaller radius,
+    instead of piling up next to the strongest corners as a plain response ranking would.
+    """
+    k = nb.idx.shape[1]
+    cols = []
+    c = k // 2
+    while c >= 2:
+        cols.append(c)
+        c //= 2
+    level = np.where(eligible, len(cols) + 1, len(cols) + 2)
+    for lev, c in reversed(list(enumerate(cols, start=1))):  # coarsest last, so it wins
+        sub = Neighbourhood(nb.idx[:, :c], nb.valid[:, :c], nb.dist[:, :c])
+        level[eligible & local_max(response, sub)] = lev
+    return level
 
 
 def voxel_downsample(

@@ -23,11 +23,13 @@ from lwbench import Param
 
 from ._base import MAX_NN_PARAM, KeypointSelector
 from ._geometry import (
+    Neighbourhood,
     det_sym6,
     eigvals_sym6,
     eigvec_sym6,
     hybrid_neighbourhood,
     local_max,
+    nms_levels,
     outer_sums,
     radius_nms,
     scatter,
@@ -41,10 +43,10 @@ METHODS = ("harris", "noble", "lowe", "tomasi", "curvature")
 
 def harris_response(
     points: np.ndarray, radius: float, max_nn: int, method: str = "harris", k: float = 0.04
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, Neighbourhood]:
     """PCL's Harris-3D response per point; also its NMS mask and whether it had a response.
 
-    Returns ``(response (N,), is_local_max (N,), defined (N,))``; ``defined`` is False where
+    Returns ``(response (N,), is_local_max (N,), defined (N,), neighbourhood)``; ``defined`` is False where
     no valid normal lies in the neighbourhood (PCL leaves the response at 0 there). The
     local maxima are computed on the capped neighbourhood, then re-suppressed among
     themselves over the full radius (:func:`radius_nms`).
@@ -59,7 +61,7 @@ def harris_response(
         defined = ok & (tot > 0)
         return_resp = np.where(defined, lam[0] / np.where(defined, tot, 1.0), 0.0)
         keep = radius_nms(points, return_resp, local_max(return_resp, nb) & defined, radius)
-        return return_resp, keep, defined
+        return return_resp, keep, defined, nb
     # Mean of n n^T over the neighbours whose normal is valid (calculateNormalCovar): invalid
     # slots and invalid normals point at an appended zero column, so they add nothing.
     n = len(normal[0])
@@ -83,16 +85,17 @@ def harris_response(
     else:
         raise ValueError(f"harris3d: unknown method {method!r}; choose from {METHODS}")
     resp = np.where(defined, r, 0.0)
-    return resp, radius_nms(points, resp, local_max(resp, nb) & defined, radius), defined
+    return resp, radius_nms(points, resp, local_max(resp, nb) & defined, radius), defined, nb
 
 
 class Harris3D(KeypointSelector):
     """Corners of the normal field (PCL ``HarrisKeypoint3D``), budgeted.
 
-    Budget rule: tier 0 = PCL's keypoints (local maxima with response ``>= threshold``),
-    ranked by response; tier 1 = every other point with a response, ranked by response (the
-    next-best corners, so a top-up prefers strong non-maxima over flat ground); tier 2 = points
-    without a valid normal. Exactly ``budget`` points come back.
+    Budget rule: tier 0 = PCL's keypoints (local maxima over the radius with response
+    ``>= threshold``), ranked by response; then, when they are fewer than the budget, local
+    maxima over ever smaller neighbourhoods (:func:`~._geometry.nms_levels`), then every other
+    point with a response, each tier ranked by response; last, points without a valid normal.
+    Exactly ``budget`` points come back.
 
     Default radius 0.5 m: PCL's Harris examples on outdoor scans use ``setRadius(0.5)``; it is
     ~2 HDL-64E ring spacings at 30 m and one VLP-16 ring spacing at ~15 m, so neighbourhoods
@@ -113,7 +116,7 @@ class Harris3D(KeypointSelector):
 
     def rank(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         cfg = self.config
-        resp, is_max, defined = harris_response(points, cfg["radius"], cfg["max_nn"], cfg["method"], cfg["k"])
-        tier = np.where(defined, 1, 2)
+        resp, is_max, defined, nb = harris_response(points, cfg["radius"], cfg["max_nn"], cfg["method"], cfg["k"])
+        tier = nms_levels(resp, nb, defined)
         tier[is_max & defined & (resp >= cfg["threshold"])] = 0
         return tier, resp

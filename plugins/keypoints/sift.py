@@ -20,9 +20,11 @@ The scalar field (``field``):
   neighbourhood pass over the full scan.
 
 Budget rule: raising ``min_contrast`` until ``k`` extrema remain is the same as ranking the
-extrema by ``|DoG|`` -- tier 0. Tier 1 tops up with the other voxel representatives (scan
-points nearest a voxel centroid) by their largest ``|DoG|`` over the inner levels; tier 2
-with every remaining point, by its voxel's largest ``|DoG|``. Exactly ``k`` points come back.
+extrema by ``|DoG|`` -- tier 0. When there are fewer than ``k``, tiers 1 and 2 top up with
+extrema over the nearest 12 and 6 neighbours only (spread like keypoints, not piled next to
+the strongest), tier 3 with the other voxel representatives (scan points nearest a voxel
+centroid) by their largest ``|DoG|`` over the inner levels, tier 4 with every remaining
+point, by its voxel's largest ``|DoG|``. Exactly ``k`` points come back.
 """
 
 from __future__ import annotations
@@ -38,6 +40,7 @@ __all__ = ["SIFT3D", "sift_scores", "field_values"]
 
 FIELDS = ("z", "curvature")
 EXTREMA_NN = 25  # PCL findScaleSpaceExtrema: "a small fixed-k neighbourhood", k = 25
+EXTREMA_LEVELS = (EXTREMA_NN, 12, 6)  # PCL's, then the budget's top-up levels
 MIN_OCTAVE_POINTS = 25  # PCL stops when an octave's cloud has fewer points
 
 
@@ -57,8 +60,14 @@ def field_values(points: np.ndarray, field: str, radius: float = 0.5, max_nn: in
 
 def octave_dog(
     cloud: np.ndarray, values: np.ndarray, base_scale: float, n_scales: int, max_nn: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """DoG extrema of one octave: ``(extremum |DoG| or 0 (M,), largest inner |DoG| (M,))``."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """DoG extrema of one octave, per point of the octave's cloud ``(M,)``.
+
+    Returns ``(level, contrast, strength)``: ``level`` 0 for PCL's extrema (over the 25 nearest
+    neighbours), 1 and 2 for extrema over the nearest 12 and 6 only (the budget's top-up),
+    3 for none; ``contrast`` the extremum's ``|DoG|`` (0 if none); ``strength`` the largest
+    ``|DoG|`` over the inner levels.
+    """
     scales = base_scale * 2.0 ** ((np.arange(n_scales + 3) - 1.0) / n_scales)
     nb = hybrid_neighbourhood(cloud, max(max_nn, EXTREMA_NN), 3.0 * scales[-1])
     d2 = nb.dist * nb.dist  # inf in invalid slots -> weight 0
@@ -69,15 +78,20 @@ def octave_dog(
         w[d2 > 9.0 * s * s] = 0.0
         smooth[i] = (w * v).sum(axis=1) / w.sum(axis=1)  # the point itself has weight 1
     dog = np.diff(smooth, axis=0)  # (n + 2, M)
-    ext_idx = nb.idx[:, :EXTREMA_NN]  # invalid slots hold the point itself: no effect
-    nvals = dog[:, ext_idx]  # (n + 2, M, 25)
-    lo, hi = nvals.min(axis=2), nvals.max(axis=2)
     inner = dog[1:-1]
-    is_min = (inner == lo[1:-1]) & (inner < lo[:-2]) & (inner < lo[2:])
-    is_max = (inner == hi[1:-1]) & (inner > hi[:-2]) & (inner > hi[2:])
     mag = np.abs(inner)
-    contrast = np.where(is_min | is_max, mag, 0.0).max(axis=0)
-    return contrast, mag.max(axis=0)
+    level = np.full(len(cloud), len(EXTREMA_LEVELS))
+    contrast = np.zeros(len(cloud))
+    for lev, kc in reversed(list(enumerate(EXTREMA_LEVELS))):  # PCL's k = 25 last, so it wins
+        nvals = dog[:, nb.idx[:, :kc]]  # (n + 2, M, kc); invalid slots hold the point itself
+        lo, hi = nvals.min(axis=2), nvals.max(axis=2)
+        is_min = (inner == lo[1:-1]) & (inner < lo[:-2]) & (inner < lo[2:])
+        is_max = (inner == hi[1:-1]) & (inner > hi[:-2]) & (inner > hi[2:])
+        c = np.where(is_min | is_max, mag, 0.0).max(axis=0)
+        hit = c > 0.0
+        level[hit] = lev
+        contrast[hit] = c[hit]
+    return level, contrast, mag.max(axis=0)
 
 
 def sift_scores(
@@ -87,7 +101,7 @@ def sift_scores(
     """``(tier, score)`` per scan point under the budget rule in the module docs."""
     pts = np.asarray(points, dtype=np.float64)
     n = len(pts)
-    tier = np.full(n, 2)
+    tier = np.full(n, len(EXTREMA_LEVELS) + 1)
     score = np.full(n, -np.inf)
     cloud, vals = pts, np.asarray(values, dtype=np.float64)
     voxel_of = np.arange(n)  # scan point -> point of the current octave's cloud
@@ -97,7 +111,8 @@ def sift_scores(
         if len(cloud) < MIN_OCTAVE_POINTS:
             break
         voxel_of = inverse[voxel_of]
-        contrast, strength = octave_dog(cloud, vals, scale, n_scales, max_nn)
+        level, contrast, strength = octave_dog(cloud, vals, scale, n_scales, max_nn)
+        level[(level == 0) & (contrast < min_contrast)] = 1
         # The representative of each voxel: the scan point nearest its centroid.
         off = pts - cloud[voxel_of]
         d2 = np.einsum("ij,ij->i", off, off)
@@ -105,13 +120,11 @@ def sift_scores(
         first = np.ones(n, dtype=bool)
         first[1:] = voxel_of[order[1:]] != voxel_of[order[:-1]]
         reps = order[first]  # sorted by voxel id, one per voxel
-        t = np.full(n, 2)
+        t = np.full(n, len(EXTREMA_LEVELS) + 1)
         s = strength[voxel_of]
         rv = voxel_of[reps]
-        is_kp = contrast[rv] > 0.0
-        is_kp &= contrast[rv] >= min_contrast
-        t[reps] = np.where(is_kp, 0, 1)
-        s[reps] = np.where(is_kp, contrast[rv], strength[rv])
+        t[reps] = level[rv]
+        s[reps] = np.where(level[rv] < len(EXTREMA_LEVELS), contrast[rv], strength[rv])
         better = (t < tier) | ((t == tier) & (s > score))
         tier = np.where(better, t, tier)
         score = np.where(better, s, score)
