@@ -69,6 +69,14 @@ def test_every_scene_scans_within_the_sensor_limits(scene, sensor, low):
     assert np.array_equal(again.points, f.points)
 
 
+def test_tunnel_starts_inside_by_default_and_outside_the_portal_from_zero():
+    inside = SimDataset(frames=1, cache=False)
+    outside = SimDataset(frames=1, start=0.0, cache=False)
+    assert np.linalg.norm(inside.poses[0][:3, 3] - outside.poses[0][:3, 3]) > 12.0  # 16 m of path
+    # Open ground in front of a rock face returns far fewer points than the inside of a drift.
+    assert len(outside[0]) < 0.8 * len(inside[0])
+
+
 def test_points_lie_on_their_beams_rays():
     ds = SimDataset(frames=2, noise=0.0, dropout=0.0, cache=False)
     sensor = ds.sensor

@@ -15,8 +15,8 @@ from .trajectory import Path
 @dataclass(frozen=True)
 class Scene:
     """A world to scan: ``mesh``, the driven ``path`` (on the ground), the sensor's height above
-    it, the stretch ``[s_start, s_end]`` the vehicle covers, and the scene's natural sensor and
-    speed."""
+    it, where sequences start by default (``s_start``) and the last driveable point (``s_end``),
+    both in metres along the path, and the scene's natural sensor and speed."""
 
     name: str
     mesh: Mesh

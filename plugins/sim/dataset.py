@@ -23,7 +23,7 @@ from .scenes import SCENES, Scene
 
 # Bump whenever a change alters generated scans: it is part of the cache key and of identity(),
 # so results computed on an older simulator are never mistaken for results on the new one.
-SIM_VERSION = "3"
+SIM_VERSION = "4"
 
 
 @functools.lru_cache(maxsize=4)
@@ -59,9 +59,10 @@ def _resolve_sensor(name: str, scene: Scene) -> SensorModel:
 class SimDataset(Dataset):
     """Simulated LiDAR sequences with ground-truth poses (the default dataset).
 
-    The vehicle starts ``start`` metres along the scene's path and moves at ``speed`` m/s;
-    consecutive scans are one sensor period apart (VLP-16 in the tunnel at 1 m/s and 4 Hz:
-    0.25 m). ``frames=0`` drives the whole path.
+    The vehicle starts ``start`` metres along the scene's path (by default where the scene says:
+    10 m inside the tunnel's portal, at the start of the urban drive, at the indoor corridor's
+    end) and moves at ``speed`` m/s; consecutive scans are one sensor period apart (VLP-16 in
+    the tunnel at 1 m/s and 4 Hz: 0.25 m). ``frames=0`` drives on to the end of the path.
     """
 
     name = "sim"
@@ -74,7 +75,8 @@ class SimDataset(Dataset):
         Param("noise", "float", 0.01, "range noise standard deviation (m)", low=0.0, high=1.0),
         Param("dropout", "float", 0.01, "probability that a ray returns nothing", low=0.0, high=0.99),
         Param("speed", "float", 0.0, "vehicle speed (m/s); 0 = the scene's default", low=0.0, high=100.0),
-        Param("start", "float", 0.0, "where the sequence starts, metres along the path", low=0.0),
+        Param("start", "float", None, "metres along the path to start at (default: the scene's; "
+              "tunnel 0 = 6 m outside the portal)", low=0.0),
         Param("distortion", "bool", False, "motion distortion: each column cast from its own pose"),
         Param("cache", "bool", True, "keep generated scans on disk (KITTI layout, LWBENCH_CACHE)"),
     )
@@ -89,19 +91,19 @@ class SimDataset(Dataset):
         self._blocked = ego_mask(self._caster.sensor_rays(self.sensor)[0], self.world.ego_boxes)
         self.speed = cfg["speed"] or self.world.speed
         self.step = self.speed / self.sensor.rate_hz
-        s0 = self.world.s_start + cfg["start"]
+        s0 = self.world.s_start if cfg["start"] is None else cfg["start"]
         room = self.world.s_end - s0
         available = int(np.floor(room / self.step + 1e-9)) + 1 if room >= 0 else 0
         if available < 1:
             raise ParameterError(
                 f"sim: start={cfg['start']} is past the end of the {cfg['scene']} path "
-                f"({self.world.s_end - self.world.s_start:.1f} m)"
+                f"(driveable up to {self.world.s_end:.1f} m)"
             )
         n = cfg["frames"] or available
         if n > available:
             raise ParameterError(
                 f"sim: {cfg['scene']} at {self.speed:g} m/s and {self.sensor.rate_hz:g} Hz has room for "
-                f"{available} frames from start={cfg['start']:g} m, asked for {n}"
+                f"{available} frames from {s0:g} m along the path, asked for {n}"
             )
         self._n = n
         self._s = s0 + self.step * np.arange(n)

@@ -39,8 +39,8 @@ def _tunnel_profile(width: np.ndarray, height: np.ndarray, n_floor: int = 7, n_w
 def build_tunnel(rng: np.random.Generator, length: float = 135.0, approach: float = 6.0) -> Scene:
     """A winding mine drift entered from outside through a portal in a rock face.
 
-    The robot starts ``approach`` metres in front of the portal on open ground (few returns,
-    like the VSGP paper's tunnel entrance, Fig. 4) and drives ``length`` metres into the drift.
+    The path starts ``approach`` metres in front of the portal on open ground (few returns,
+    like the VSGP paper's tunnel entrance, Fig. 4) and runs ``length`` metres into the drift.
     Heading, floor elevation, width (3.7-6.3 m) and height (3.2-4.8 m) vary smoothly; the drift
     opens into three chambers up to ~12 m wide and ~8 m high; walls and roof are rough at 1.5 m
     and 0.4 m scales, the floor gently uneven; boulders lie along the walls; the far end is
@@ -105,7 +105,9 @@ def build_tunnel(rng: np.random.Generator, length: float = 135.0, approach: floa
     lat = side * (w_at / 2 - radius * 0.6)
     pos = path.position(s_rock) + lat[:, None] * path.lateral(s_rock)
     b.blobs(pos, radius, ROCK, rng, roughness=0.3, subdivisions=1, squash=0.7)
-    return Scene("tunnel", b.build(), path, 0.5, 0.0, approach + length, "vlp16", 1.0)
+    # Sequences start 10 m into the drift by default (the portal then behind, out of range);
+    # start=0 drives in from outside.
+    return Scene("tunnel", b.build(), path, 0.5, approach + 10.0, approach + length, "vlp16", 1.0)
 
 
 def _portal(b: MeshBuilder, rng: np.random.Generator, floor_centre: np.ndarray, forward: np.ndarray,
