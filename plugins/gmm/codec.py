@@ -1,0 +1,214 @@
+"""``gmm``: a scan as a Gaussian mixture -- the GMM baseline of the VSGP paper (§II, §V).
+
+Encode fits K full-covariance Gaussians to the scan's points in the sensor frame
+(:class:`~lwbench_plugins.gmm.mixture.TorchGaussianMixture`) and sends 10 numbers per
+component. Decode draws as many points as the scan had, each inside its component's 3-sigma
+ellipsoid (gira3d's sampler), and can put them back on the sensor's rays.
+
+Body layout (little endian)::
+
+    dtype     u8    0 = float32, 1 = float16
+    n_points  u32   points in the scan (= points to draw on decode)
+    k_occ     u32   components of the occupied-space mixture
+    k_free    u32   components of the free-space mixture (0 = option off)
+    params    (k_occ + k_free) x 10 x dtype, per component:
+              weight, mean x y z, lower Cholesky factor L00 L10 L11 L20 L21 L22
+
+so ``len(body) = 13 + 10 * (k_occ + k_free) * itemsize``. The six covariance numbers are the
+Cholesky factor of the covariance (``Sigma = L L^T``) rather than its upper triangle: the
+same count as the paper's "6 FP for covariance", but any rounding (float16!) of ``L`` still
+gives a positive-definite covariance, while rounding the entries of a flat surface patch's
+covariance easily makes it indefinite.
+
+Free space (option ``free_components``): the two-model framework of Tabib / O'Meadhra fits a
+second mixture to samples of the free space the rays crossed. Here: one sample per return,
+uniform along its ray between the sensor and ``free_margin`` before the hit. Decode keeps a
+drawn point only where the occupied mixture's density beats the free one (equal priors: both
+were fitted to the same number of samples), which removes draws from the tails that reach
+into the empty tunnel.
+"""
+
+from __future__ import annotations
+
+import struct
+import warnings
+
+import numpy as np
+import torch
+
+from lwbench import (
+    DEVICE_PARAM,
+    Frame,
+    Param,
+    PayloadError,
+    RepresentationCodec,
+    SensorModel,
+    resolve_device,
+)
+
+from .mixture import TorchGaussianMixture, mixture_log_prob, sample_mixture
+
+__all__ = ["GMMCodec", "body_size"]
+
+_HEAD = struct.Struct("<BIII")
+_DTYPES = {"float32": (0, np.dtype("<f4")), "float16": (1, np.dtype("<f2"))}
+_BY_CODE = {code: dt for code, dt in _DTYPES.values()}
+_FLOATS_PER_COMPONENT = 10
+_MAX_POINTS = 1 << 26  # a decoder must not be made to allocate without bound by a header
+_TRIL = torch.tril_indices(3, 3)
+
+
+def body_size(k_occ: int, k_free: int, dtype: str = "float32") -> int:
+    """Bytes of the body for the given component counts (the formula tests check)."""
+    return _HEAD.size + _FLOATS_PER_COMPONENT * (k_occ + k_free) * _DTYPES[dtype][1].itemsize
+
+
+def _pack(gm: TorchGaussianMixture) -> np.ndarray:
+    """``(K, 10)`` float64 rows: weight, mean, lower Cholesky entries."""
+    chol = torch.as_tensor(gm.cholesky_)[:, _TRIL[0], _TRIL[1]].numpy()
+    return np.concatenate([gm.weights_[:, None], gm.means_, chol], axis=1)
+
+
+def _unpack(rows: np.ndarray) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Rows back to (weights, means, lower Cholesky factors), checked, float64."""
+    rows = torch.as_tensor(rows, dtype=torch.float64)
+    if not torch.isfinite(rows).all():
+        raise PayloadError("gmm payload: non-finite component parameters")
+    w, mu = rows[:, 0], rows[:, 1:4]
+    chol = torch.zeros(len(rows), 3, 3, dtype=torch.float64)
+    chol[:, _TRIL[0], _TRIL[1]] = rows[:, 4:]
+    diag = torch.diagonal(chol, dim1=-2, dim2=-1)
+    if len(rows) and ((w < 0).any() or float(w.sum()) <= 0 or (diag <= 0).any()):
+        raise PayloadError("gmm payload: negative weights or a non-positive Cholesky diagonal")
+    return w, mu, chol
+
+
+def free_space_samples(points: np.ndarray, margin: float, gen: torch.Generator) -> torch.Tensor:
+    """One point per return, uniform on its ray between the sensor and ``margin`` before the hit."""
+    p = torch.as_tensor(points, dtype=torch.float64)
+    r = torch.linalg.vector_norm(p, dim=1, keepdim=True).clamp_min(1e-9)
+    reach = (r - margin).clamp_min(0) / r
+    t = torch.rand(len(p), 1, dtype=torch.float64, generator=gen) * reach
+    return p * t
+
+
+class GMMCodec(RepresentationCodec):
+    """K-component Gaussian mixture of the scan, decoded by (truncated) sampling."""
+
+    name = "gmm"
+    version = "1"
+    description = "Gaussian mixture (K x 10 floats), decoded by 3-sigma sampling (VSGP paper's baseline)"
+    supports_gpu = True
+    params = (
+        Param("n_components", "int", 200, "mixture components K (the paper pairs 200 with VSGP M=500)",
+              low=1, high=100_000),
+        Param("max_iter", "int", 100, "EM iterations at most", low=1, high=10_000),
+        Param("tol", "float", 1e-3, "EM stops when the mean log-likelihood changes less", low=0.0),
+        Param("reg_covar", "float", 1e-6, "added to covariance diagonals (m^2)", low=1e-12, high=1.0),
+        Param("kmeans_iter", "int", 10, "Lloyd iterations after k-means++", low=0, high=1000),
+        Param("fit_points", "int", 0, "fit on a random subset of this many points (0 = all)", low=0),
+        Param("dtype", "str", "float32", "precision of the 10 numbers per component",
+              choices=tuple(_DTYPES)),
+        Param("truncate", "float", 3.0, "decode draws stay inside this many sigma", low=0.5, high=10.0),
+        Param("reproject", "bool", False,
+              "re-project decoded points onto the sensor's range image (one per cell, nearest)"),
+        Param("free_components", "int", 0, "components of the free-space mixture (0 = off)",
+              low=0, high=100_000),
+        Param("free_margin", "float", 0.2, "free-space samples stop this far (m) before each return",
+              low=0.0),
+        Param("seed", "int", 0, "seed of initialisation and decode sampling", low=0),
+        DEVICE_PARAM,
+    )
+
+    # -- encode ------------------------------------------------------------------------------
+    def _fit(self, points: torch.Tensor | np.ndarray, k: int, gen_seed: int) -> np.ndarray:
+        cfg = self.config
+        gm = TorchGaussianMixture(
+            k,
+            tol=cfg["tol"],
+            reg_covar=cfg["reg_covar"],
+            max_iter=cfg["max_iter"],
+            kmeans_iter=cfg["kmeans_iter"],
+            random_state=gen_seed,
+            device=resolve_device(cfg["device"]),
+        )
+        with warnings.catch_warnings():  # hitting max_iter is the configured budget, not an error
+            warnings.simplefilter("ignore")
+            gm.fit(points)
+        return _pack(gm)
+
+    def encode(self, frame: Frame) -> bytes:
+        """Fit the mixture(s). Fallbacks: fewer points than K -> K = N; no points -> K = 0."""
+        cfg = self.config
+        pts = frame.points
+        n = len(pts)
+        seed = [cfg["seed"], frame.index]
+        rng = np.random.default_rng(seed)
+        fit_pts = pts
+        if cfg["fit_points"] and n > cfg["fit_points"]:
+            fit_pts = pts[np.sort(rng.choice(n, cfg["fit_points"], replace=False))]
+        init_seed = int(rng.integers(2**31))
+        k_occ = min(cfg["n_components"], len(fit_pts))
+        rows = [self._fit(fit_pts, k_occ, init_seed)] if k_occ else []
+        k_free = min(cfg["free_components"], len(fit_pts))
+        if k_free:
+            gen = torch.Generator().manual_seed(int(rng.integers(2**31)))
+            free = free_space_samples(fit_pts, cfg["free_margin"], gen)
+            rows.append(self._fit(free, k_free, init_seed))
+        dt_code, dt = _DTYPES[cfg["dtype"]]
+        params = np.concatenate(rows) if rows else np.zeros((0, _FLOATS_PER_COMPONENT))
+        if cfg["dtype"] == "float16":
+            tiny = np.finfo(np.float16).tiny
+            params[:, [4, 6, 9]] = np.maximum(params[:, [4, 6, 9]], tiny)  # keep L's diagonal > 0
+        body = _HEAD.pack(dt_code, n, k_occ, k_free) + params.astype(dt).tobytes()
+        meta = {"truncate": cfg["truncate"], "seed": cfg["seed"], "reproject": cfg["reproject"]}
+        if cfg["reproject"]:
+            meta["sensor"] = frame.sensor.to_dict()
+        return self.make_payload(frame, meta, body)
+
+    # -- decode ------------------------------------------------------------------------------
+    def mixtures(self, data: bytes) -> tuple[tuple[torch.Tensor, ...], tuple[torch.Tensor, ...] | None, int]:
+        """The decoded occupied and free-space mixtures (weights, means, lower Cholesky factors,
+        float64) and the scan's point count, checked; ``PayloadError`` on anything malformed."""
+        return self._read(self.read_payload(data))
+
+    @staticmethod
+    def _read(payload) -> tuple[tuple[torch.Tensor, ...], tuple[torch.Tensor, ...] | None, int]:
+        body = payload.body
+        if len(body) < _HEAD.size:
+            raise PayloadError(f"gmm payload: body of {len(body)} bytes is shorter than its header")
+        code, n, k_occ, k_free = _HEAD.unpack_from(body, 0)
+        dt = _BY_CODE.get(code)
+        if dt is None:
+            raise PayloadError(f"gmm payload: unknown dtype code {code}")
+        expected = _HEAD.size + _FLOATS_PER_COMPONENT * (k_occ + k_free) * dt.itemsize
+        if len(body) != expected:
+            raise PayloadError(f"gmm payload: body has {len(body)} bytes, expected {expected}")
+        if n > _MAX_POINTS or (n > 0 and k_occ == 0):
+            raise PayloadError(f"gmm payload: {n} points from {k_occ} components is not decodable")
+        rows = np.frombuffer(body, dtype=dt, offset=_HEAD.size).reshape(-1, _FLOATS_PER_COMPONENT)
+        rows = rows.astype(np.float64)
+        free = _unpack(rows[k_occ:]) if k_free else None
+        return _unpack(rows[:k_occ]), free, n
+
+    def decode(self, data: bytes) -> np.ndarray:
+        payload = self.read_payload(data)
+        truncate = float(self.meta_field(payload, "truncate", (int, float)))
+        seed = self.meta_field(payload, "seed", int)
+        reproject = self.meta_field(payload, "reproject", bool)
+        if not 0 < truncate <= 100 or seed < 0:
+            raise PayloadError("gmm payload: truncate or seed out of range")
+        (w, mu, chol), free, n = self._read(payload)
+        gen = torch.Generator().manual_seed(seed)
+        x, _ = sample_mixture(w, mu, chol, n, gen, truncate)
+        if free is not None:
+            x = x[mixture_log_prob(w, mu, chol, x) >= mixture_log_prob(*free, x)]
+        pts = x.numpy().astype(np.float32)
+        if reproject:
+            sensor_dict = self.meta_field(payload, "sensor", dict)
+            try:
+                sensor = SensorModel.from_dict(sensor_dict)
+            except (KeyError, TypeError, ValueError) as exc:
+                raise PayloadError(f"gmm payload: bad sensor description: {exc}") from None
+            pts = sensor.unproject(sensor.project(pts).ranges)
+        return pts
