@@ -1,0 +1,196 @@
+"""Measurements behind VSGP's defaults (``docs/vsgp.md``), runnable on any KITTI-layout folder.
+
+    lwbench simulate tunnel --out /tmp/simtunnel --frames 50
+    python -m lwbench_plugins.vsgp.experiments steps  /tmp/simtunnel --frames 10
+    python -m lwbench_plugins.vsgp.experiments sweep  /tmp/simtunnel --frames 20
+    python -m lwbench_plugins.vsgp.experiments timing /tmp/simtunnel --frames 20
+    python -m lwbench_plugins.vsgp.experiments bodies /tmp/simtunnel --frames 10
+
+Each prints a Markdown table. Scores follow lwbench's range-image definitions (DESIGN.md):
+RMSD over cells where both clouds have a return, coverage, false returns. Timings are medians
+and are also given as a ratio to a reference workload timed in the same process (one
+57,600 x 500 RQ kernel evaluation), because this machine is shared and noisy.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from lwbench import Frame, SensorModel
+
+from . import VSGPCodec
+from .decoder import auto_stride, predict_grid, query_grid, variance_mask
+from .encoder import FitConfig, fit_scan
+from .gp import Hyper, rq_grid
+
+
+def load_frames(folder: str, n: int) -> list[Frame]:
+    """First ``n`` scans of a KITTI-layout folder written by ``lwbench simulate`` (sensor.json)."""
+    root = Path(folder)
+    sensor = SensorModel.from_dict(json.loads((root / "sensor.json").read_text()))
+    files = sorted((root / "velodyne").glob("*.bin"))[:n]
+    return [Frame(np.fromfile(f, dtype=np.float32).reshape(-1, 4)[:, :3], sensor, index=i)
+            for i, f in enumerate(files)]
+
+
+def scores(frame: Frame, ranges_out: np.ndarray) -> tuple[float, float, float]:
+    """(range RMSD m, coverage, false returns) of a decoded range image against the frame."""
+    a = frame.sensor.project(frame.points).ranges
+    both = (a > 0) & (ranges_out > 0)
+    rmsd = float(np.sqrt(np.mean((a[both] - ranges_out[both]) ** 2))) if both.any() else float("nan")
+    cov = both.sum() / max(1, (a > 0).sum())
+    false = ((ranges_out > 0) & ~(a > 0)).sum() / max(1, (ranges_out > 0).sum())
+    return rmsd, float(cov), float(false)
+
+
+def reference_seconds() -> float:
+    """Median time of one 57,600 x 500 RQ kernel evaluation (the decoder's dominant workload)."""
+    az = torch.linspace(-3.1, 3.1, 3600)
+    el = torch.linspace(-0.26, 0.26, 16)
+    z = torch.rand(500, 2)
+    h = Hyper(0.1, 0.035, 1.0, 10.0, 0.01)
+    ts = []
+    for _ in range(5):
+        t = time.perf_counter()
+        rq_grid(az, el, z, h)
+        ts.append(time.perf_counter() - t)
+    return float(np.median(ts))
+
+
+def cmd_steps(frames: list[Frame], args: argparse.Namespace) -> None:
+    print("| max steps | steps run (mean) | bound / point | encode s (median) | refine s | range RMSD cm "
+          "| coverage |")
+    print("|---|---|---|---|---|---|---|")
+    for steps in args.steps:
+        rows = []
+        for fr in frames:
+            codec = VSGPCodec(steps=steps, tol=args.tol, device="cpu")
+            t = time.perf_counter()
+            data = codec.encode(fr)
+            enc = time.perf_counter() - t
+            tim = dict(codec.last_timings)
+            out = fr.sensor.project(codec.decode(data)).ranges
+            rm, cov, _ = scores(fr, out)
+            ranges = fr.sensor.project(fr.points).ranges
+            res = fit_scan(ranges, fr.sensor, fr.sensor.max_range, FitConfig(steps=steps, tol=args.tol),
+                           torch.device("cpu")) if args.bound else None
+            b = res.bounds[-1] if res is not None and res.bounds else float("nan")
+            rows.append((tim["steps_run"], b, enc, tim["refine"], rm, cov))
+        o = np.array(rows)
+        print(f"| {steps} | {o[:, 0].mean():.1f} | {np.nanmean(o[:, 1]):.3f} | {np.median(o[:, 2]):.3f} | "
+              f"{np.median(o[:, 3]):.3f} | {100 * o[:, 4].mean():.2f} ± {100 * o[:, 4].std():.2f} | "
+              f"{o[:, 5].mean():.3f} |")
+
+
+def cmd_sweep(frames: list[Frame], args: argparse.Namespace) -> None:
+    """Variance threshold sweep: predict once per frame, then score every (K_m, K_std)."""
+    cache = []
+    for fr in frames:
+        s = fr.sensor
+        ranges = s.project(fr.points).ranges
+        res = fit_scan(ranges, s, s.max_range, FitConfig(), torch.device("cpu"))
+        az, el = query_grid(s, 1)
+        stride = auto_stride(res.hyper, az[1] - az[0])
+        mean, var = predict_grid(res.z, res.u, res.hyper, az, el, stride, torch.device("cpu"))
+        cache.append((fr, s.max_range - mean, var, res.hyper.outputscale))
+    results = []
+    for v_floor in args.v_floor:
+        for k_m in args.k_m:
+            for k_std in args.k_std:
+                rows = []
+                for fr, r, var, scale in cache:
+                    keep = variance_mask(var, k_m, k_std, v_floor * scale)
+                    keep &= (r >= fr.sensor.min_range) & (r < fr.sensor.max_range)
+                    rows.append(scores(fr, np.where(keep, r, 0.0)))
+                o = np.array(rows)
+                results.append((v_floor, k_m, k_std, *np.nanmean(o, 0), o[:, 1].min()))
+    print("| v_floor | K_m | K_std | range RMSD cm | coverage (mean) | coverage (worst frame) "
+          "| false returns |")
+    print("|---|---|---|---|---|---|---|")
+    for v_floor, k_m, k_std, rm, cov, fa, cmin in results:
+        print(f"| {v_floor:g} | {k_m:g} | {k_std:g} | {100 * rm:.2f} | {cov:.3f} | {cmin:.3f} | {fa:.3f} |")
+    ok = [r for r in results if r[6] >= args.min_coverage]
+    if ok:
+        best = min(ok, key=lambda r: (round(r[5], 3), round(r[3], 4)))
+        print(f"\nfewest false returns with every frame's coverage >= {args.min_coverage}: "
+              f"v_floor={best[0]:g} K_m={best[1]:g} K_std={best[2]:g}")
+
+
+def cmd_timing(frames: list[Frame], args: argparse.Namespace) -> None:
+    ref = reference_seconds()
+    enc_stages = ["projection", "layout", "refine", "fit", "serialize"]
+    dec_stages = ["parse", "predict", "sampling"]
+    for m in args.m:
+        codec = VSGPCodec(num_inducing=m, steps=args.steps[0], device="cpu")
+        codec.decode(codec.encode(frames[0]))  # warm-up
+        e_rows, d_rows, enc, dec = [], [], [], []
+        for fr in frames:
+            t = time.perf_counter()
+            data = codec.encode(fr)
+            enc.append(time.perf_counter() - t)
+            e_rows.append([codec.last_timings[k] for k in enc_stages])
+            t = time.perf_counter()
+            codec.decode(data)
+            dec.append(time.perf_counter() - t)
+            d_rows.append([codec.last_timings[k] for k in dec_stages])
+        e = np.median(np.array(e_rows), 0)
+        d = np.median(np.array(d_rows), 0)
+        print(f"\nM={m}, steps={args.steps[0]}, {len(frames)} frames, "
+              f"torch threads={torch.get_num_threads()}, "
+              f"reference (57,600x500 RQ kernel) = {ref * 1000:.1f} ms\n")
+        print("| stage | median ms | x reference |")
+        print("|---|---|---|")
+        for k, v in zip(enc_stages + dec_stages, list(e) + list(d), strict=True):
+            print(f"| {k} | {1000 * v:.1f} | {v / ref:.2f} |")
+        print(f"| **encode total** | {1000 * np.median(enc):.1f} | {np.median(enc) / ref:.2f} |")
+        print(f"| **decode total** | {1000 * np.median(dec):.1f} | {np.median(dec) / ref:.2f} |")
+
+
+def cmd_bodies(frames: list[Frame], args: argparse.Namespace) -> None:
+    print("| body | bytes (mean) | range RMSD cm | extra RMSD vs float32 (mm) | coverage |")
+    print("|---|---|---|---|---|")
+    base = None
+    for fmt in ("float32", "float16", "q16", "q16z"):
+        rows = []
+        for fr in frames:
+            codec = VSGPCodec(body=fmt, steps=args.steps[0], device="cpu")
+            data = codec.encode(fr)
+            out = fr.sensor.project(codec.decode(data)).ranges
+            rows.append((len(data), *scores(fr, out)))
+        o = np.array(rows)
+        base = o[:, 1] if base is None else base
+        extra = 1000 * (o[:, 1] - base).mean()
+        print(f"| {fmt} | {o[:, 0].mean():.0f} | {100 * o[:, 1].mean():.2f} | {extra:.2f} | "
+              f"{o[:, 2].mean():.3f} |")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("command", choices=["steps", "sweep", "timing", "bodies"])
+    ap.add_argument("folder")
+    ap.add_argument("--frames", type=int, default=10)
+    ap.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
+    ap.add_argument("--steps", type=int, nargs="+", default=[0, 1, 2, 5, 10, 20])
+    ap.add_argument("--tol", type=float, default=0.0)
+    ap.add_argument("--bound", action="store_true", help="also report the final bound (refits)")
+    ap.add_argument("--k-m", type=float, nargs="+", default=[0.1, 0.2, 0.3, 0.5, 0.7, 1.0])
+    ap.add_argument("--k-std", type=float, nargs="+", default=[0.0, 0.25, 0.5, 1.0])
+    ap.add_argument("--v-floor", type=float, nargs="+", default=[0.0, 0.01, 0.03, 0.1])
+    ap.add_argument("--min-coverage", type=float, default=0.95)
+    ap.add_argument("--m", type=int, nargs="+", default=[500])
+    args = ap.parse_args()
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    frames = load_frames(args.folder, args.frames)
+    commands = {"steps": cmd_steps, "sweep": cmd_sweep, "timing": cmd_timing, "bodies": cmd_bodies}
+    commands[args.command](frames, args)
+
+
+if __name__ == "__main__":
+    main()
