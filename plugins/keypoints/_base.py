@@ -8,7 +8,7 @@ import numpy as np
 
 from lwbench import BUDGET_PARAMS, Frame, LwbenchError, Param, SelectionCodec
 
-__all__ = ["KeypointError", "KeypointSelector", "MIN_POINTS", "MAX_NN_PARAM", "top_k"]
+__all__ = ["KeypointError", "KeypointSelector", "MIN_POINTS", "MAX_NN_PARAM", "top_k", "voxel_firsts", "voxel_param"]
 
 #: Fewer points than this cannot define a neighbourhood, a scatter matrix or a local maximum.
 MIN_POINTS = 10
@@ -19,6 +19,29 @@ MAX_NN_PARAM = Param(
     "at most this many nearest neighbours inside the radius (hybrid search, as Open3D's "
     "KDTreeSearchParamHybrid); caps cost where the scan is dense", low=4, high=512,
 )
+
+
+def voxel_param(default: float) -> Param:
+    """Thinning before detection (Harris, ISS); SIFT builds its own voxel pyramid."""
+    return Param(
+        "voxel", "float", default,
+        "detect on the first scan point of each voxel of this size (m); 0 = on every point. "
+        "Thinning the dense near field makes the max_nn neighbours span more of the radius and "
+        "halves the work on a KITTI frame (124,668 -> 60,152 points at 0.1 m)", low=0.0, high=10.0,
+    )
+
+
+def voxel_firsts(points: np.ndarray, leaf: float) -> np.ndarray:
+    """Sorted indices of the first point (in scan order) of every occupied voxel."""
+    ijk = np.floor(np.asarray(points, dtype=np.float64) / leaf).astype(np.int64)
+    ijk -= ijk.min(axis=0)
+    dims = ijk.max(axis=0) + 1
+    if float(dims[0]) * float(dims[1]) * float(dims[2]) < 2.0**62:
+        key = (ijk[:, 0] * dims[1] + ijk[:, 1]) * dims[2] + ijk[:, 2]
+        _, first = np.unique(key, return_index=True)
+    else:  # a grid too fine to pack into one int64 key
+        _, first = np.unique(ijk, axis=0, return_index=True)
+    return np.sort(first)
 
 
 class KeypointError(LwbenchError, ValueError):
@@ -50,7 +73,8 @@ def top_k(tier: np.ndarray, score: np.ndarray, k: int) -> np.ndarray:
 class KeypointSelector(SelectionCodec):
     """A budgeted keypoint detector: response per point, then :func:`top_k` of the ranking.
 
-    Subclasses implement :meth:`rank`, returning ``(tier, score)`` per point. The detector's
+    Subclasses implement :meth:`rank`, returning ``(tier, score)`` per point; with a ``voxel``
+    parameter ``> 0`` it runs on the thinned scan (:func:`voxel_firsts`). The detector's
     own threshold (PCL's ``threshold``/``min_contrast``) is replaced by the budget, which is
     how PocoNet's comparison keeps 8,000-10,000 points per scan for every method.
     """
@@ -71,5 +95,14 @@ class KeypointSelector(SelectionCodec):
         k = self.budget(n)
         if k == 0:
             return np.empty(0, dtype=np.int64)
-        tier, score = self.rank(frame.points)
+        leaf = self.config.get("voxel") or 0.0
+        keep = voxel_firsts(frame.points, leaf) if leaf > 0 else None
+        if keep is None or len(keep) < MIN_POINTS or len(keep) == n:
+            tier, score = self.rank(frame.points)
+            return top_k(tier, score, k)
+        # Detect on the thinned scan; the points thinning dropped come last, in scan order.
+        sub_tier, sub_score = self.rank(frame.points[keep])
+        tier = np.full(n, int(sub_tier.max()) + 1)
+        score = np.full(n, -np.inf)
+        tier[keep], score[keep] = sub_tier, sub_score
         return top_k(tier, score, k)

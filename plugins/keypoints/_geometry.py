@@ -32,6 +32,7 @@ __all__ = [
     "det_sym6",
     "eigvals_sym6",
     "eigvec_sym6",
+    "first_beaten",
     "local_max",
     "radius_nms",
     "nms_levels",
@@ -179,18 +180,27 @@ def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return np.stack([u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]])
 
 
-def local_max(response: np.ndarray, nb: Neighbourhood) -> np.ndarray:
-    """True where no valid neighbour has a larger response (PCL's and Open3D's NMS).
+def first_beaten(response: np.ndarray, nb: Neighbourhood) -> np.ndarray:
+    """Column of the nearest valid neighbour with a larger response; ``K`` where there is none.
 
-    PCL and Open3D keep exact ties; here a tie goes to the lower index, so that a plateau
-    (a perfectly regular synthetic surface, duplicated points) yields one keypoint per
+    One pass serves every NMS in this package: a point is a local maximum over its nearest
+    ``c`` neighbours exactly when ``first_beaten >= c`` (columns are sorted by distance).
+    PCL and Open3D keep exact ties; here a tie goes to the lower index, so a plateau (a
+    perfectly regular synthetic surface, duplicated points) yields one keypoint per
     neighbourhood rather than all of its points. Real scans have no exact ties away from
-    duplicates, so the keypoints are the same.
+    duplicates, so their keypoints are the same.
     """
     r = response[:, None]
     nbr = response[nb.idx]
     beaten = (nbr > r) | ((nbr == r) & (nb.idx < np.arange(len(response))[:, None]))
-    return ~(beaten & nb.valid).any(axis=1)
+    beaten &= nb.valid
+    k = nb.idx.shape[1]
+    return np.where(beaten.any(axis=1), beaten.argmax(axis=1), k)
+
+
+def local_max(response: np.ndarray, nb: Neighbourhood) -> np.ndarray:
+    """True where no valid neighbour has a larger response (PCL's and Open3D's NMS)."""
+    return first_beaten(response, nb) == nb.idx.shape[1]
 
 
 def radius_nms(points: np.ndarray, response: np.ndarray, candidates: np.ndarray, radius: float) -> np.ndarray:
@@ -220,16 +230,16 @@ def radius_nms(points: np.ndarray, response: np.ndarray, candidates: np.ndarray,
     return out
 
 
-def nms_levels(response: np.ndarray, nb: Neighbourhood, eligible: np.ndarray) -> np.ndarray:
+def nms_levels(beaten_at: np.ndarray, k: int, eligible: np.ndarray) -> np.ndarray:
     """Top-up tiers: the NMS level at which each eligible point first becomes a local maximum.
 
-    Level 1 is a local maximum over its nearest ``K/2`` neighbours, level 2 over ``K/4``, ...
-    down to 2; eligible points that never are get the last level + 1, others + 2. When the
-    detector's own keypoints (NMS over the full ball) fall short of the budget, filling up level
-    by level keeps the extra points spread over the scan like keypoints of a smaller radius,
-    instead of piling up next to the strongest corners as a plain response ranking would.
+    ``beaten_at`` is :func:`first_beaten` of a ``k``-wide neighbourhood. Level 1 is a local
+    maximum over its nearest ``k/2`` neighbours, level 2 over ``k/4``, ... down to 2; eligible
+    points that never are get the last level + 1, others + 2. When the detector's own keypoints
+    (NMS over the full ball) fall short of the budget, filling up level by level keeps the
+    extra points spread over the scan like keypoints of a smaller radius, instead of piling up
+    next to the strongest corners as a plain response ranking would.
     """
-    k = nb.idx.shape[1]
     cols = []
     c = k // 2
     while c >= 2:
@@ -237,8 +247,7 @@ def nms_levels(response: np.ndarray, nb: Neighbourhood, eligible: np.ndarray) ->
         c //= 2
     level = np.where(eligible, len(cols) + 1, len(cols) + 2)
     for lev, c in reversed(list(enumerate(cols, start=1))):  # coarsest last, so it wins
-        sub = Neighbourhood(nb.idx[:, :c], nb.valid[:, :c], nb.dist[:, :c])
-        level[eligible & local_max(response, sub)] = lev
+        level[eligible & (beaten_at >= c)] = lev
     return level
 
 

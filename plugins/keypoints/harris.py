@@ -21,14 +21,14 @@ import numpy as np
 
 from lwbench import Param
 
-from ._base import MAX_NN_PARAM, KeypointSelector
+from ._base import MAX_NN_PARAM, KeypointSelector, voxel_param
 from ._geometry import (
     Neighbourhood,
     det_sym6,
     eigvals_sym6,
     eigvec_sym6,
+    first_beaten,
     hybrid_neighbourhood,
-    local_max,
     nms_levels,
     outer_sums,
     radius_nms,
@@ -43,25 +43,34 @@ METHODS = ("harris", "noble", "lowe", "tomasi", "curvature")
 
 def harris_response(
     points: np.ndarray, radius: float, max_nn: int, method: str = "harris", k: float = 0.04
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, Neighbourhood]:
-    """PCL's Harris-3D response per point; also its NMS mask and whether it had a response.
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """PCL's Harris-3D response per point, its keypoints, and what the budget rule needs.
 
-    Returns ``(response (N,), is_local_max (N,), defined (N,), neighbourhood)``; ``defined`` is False where
-    no valid normal lies in the neighbourhood (PCL leaves the response at 0 there). The
-    local maxima are computed on the capped neighbourhood, then re-suppressed among
-    themselves over the full radius (:func:`radius_nms`).
+    Returns ``(response, keypoint, defined, beaten_at)``, all ``(N,)``: ``defined`` is False
+    where no valid normal lies in the neighbourhood (PCL leaves the response at 0 there);
+    ``keypoint`` = local maxima on the capped neighbourhood, re-suppressed among themselves
+    over the full radius (:func:`radius_nms`); ``beaten_at`` = :func:`first_beaten`.
     """
     nb = hybrid_neighbourhood(points, max_nn, radius)
     count, _, s = scatter(points, nb)
     lam = eigvals_sym6(s)
     normal, ok = eigvec_sym6(s, lam[0])
     ok &= count >= 3  # PCL's NormalEstimation gives NaN with fewer than 3 neighbours
-    if method == "curvature":
+    if method == "curvature":  # PCL: the normal estimation's surface variation
         tot = lam.sum(axis=0)
         defined = ok & (tot > 0)
-        return_resp = np.where(defined, lam[0] / np.where(defined, tot, 1.0), 0.0)
-        keep = radius_nms(points, return_resp, local_max(return_resp, nb) & defined, radius)
-        return return_resp, keep, defined, nb
+        resp = np.where(defined, lam[0] / np.where(defined, tot, 1.0), 0.0)
+    else:
+        resp, defined = _normal_covariance_response(nb, normal, ok, method, k)
+    beaten_at = first_beaten(resp, nb)
+    keypoint = radius_nms(points, resp, (beaten_at == nb.idx.shape[1]) & defined, radius)
+    return resp, keypoint, defined, beaten_at
+
+
+def _normal_covariance_response(
+    nb: Neighbourhood, normal: np.ndarray, ok: np.ndarray, method: str, k: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """PCL's responses from the mean ``n n^T`` of the valid normals around each point."""
     # Mean of n n^T over the neighbours whose normal is valid (calculateNormalCovar): invalid
     # slots and invalid normals point at an appended zero column, so they add nothing.
     n = len(normal[0])
@@ -84,8 +93,7 @@ def harris_response(
         r = eigvals_sym6(c)[0]
     else:
         raise ValueError(f"harris3d: unknown method {method!r}; choose from {METHODS}")
-    resp = np.where(defined, r, 0.0)
-    return resp, radius_nms(points, resp, local_max(resp, nb) & defined, radius), defined, nb
+    return np.where(defined, r, 0.0), defined
 
 
 class Harris3D(KeypointSelector):
@@ -109,6 +117,7 @@ class Harris3D(KeypointSelector):
         *KeypointSelector.params,
         Param("radius", "float", 0.5, "normal / covariance / NMS radius in metres", low=1e-3, high=100.0),
         MAX_NN_PARAM,
+        voxel_param(0.1),
         Param("method", "str", "harris", "response (PCL ResponseMethod)", choices=METHODS),
         Param("k", "float", 0.04, "Harris constant (PCL hard-codes 0.04)", low=0.0, high=0.25),
         Param("threshold", "float", 0.0, "PCL response threshold for tier-0 keypoints", low=-1e9, high=1e9),
@@ -116,7 +125,9 @@ class Harris3D(KeypointSelector):
 
     def rank(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         cfg = self.config
-        resp, is_max, defined, nb = harris_response(points, cfg["radius"], cfg["max_nn"], cfg["method"], cfg["k"])
-        tier = nms_levels(resp, nb, defined)
+        resp, is_max, defined, beaten_at = harris_response(
+            points, cfg["radius"], cfg["max_nn"], cfg["method"], cfg["k"]
+        )
+        tier = nms_levels(beaten_at, min(cfg["max_nn"], len(points)), defined)
         tier[is_max & defined & (resp >= cfg["threshold"])] = 0
         return tier, resp

@@ -23,8 +23,8 @@ import numpy as np
 
 from lwbench import Param
 
-from ._base import MAX_NN_PARAM, KeypointSelector
-from ._geometry import eigvals_sym6, hybrid_neighbourhood, local_max, nms_levels, outer6, radius_nms, scatter
+from ._base import MAX_NN_PARAM, KeypointSelector, voxel_param
+from ._geometry import eigvals_sym6, first_beaten, hybrid_neighbourhood, nms_levels, outer6, radius_nms, scatter
 
 __all__ = ["ISS", "iss_response"]
 
@@ -62,9 +62,10 @@ def iss_response(
         salient = has_scatter & (e2 / e1 < gamma_21) & (e3 / e2 < gamma_32)
     third = np.where(salient, e3, 0.0)
     nb_nm = nb_all.within(non_max_radius) if non_max_radius < max(salient_radius, non_max_radius) else nb_all
-    keypoint = (third > 0.0) & (nb_nm.count >= min_neighbors) & local_max(third, nb_nm)
+    beaten_at = first_beaten(third, nb_nm)
+    keypoint = (third > 0.0) & (nb_nm.count >= min_neighbors) & (beaten_at == nb_nm.idx.shape[1])
     keypoint = radius_nms(points, third, keypoint, non_max_radius)
-    tier = nms_levels(third, nb_nm, salient)  # 1..L for smaller NMS balls, L+1: other salient
+    tier = nms_levels(beaten_at, nb_nm.idx.shape[1], salient)  # 1..L smaller NMS balls, L+1 rest
     last = int(tier.max(initial=1))
     tier[~salient] = last + 1
     tier[~has_scatter] = last + 2
@@ -98,6 +99,7 @@ class ISS(KeypointSelector):
         Param("gamma_32", "float", 0.975, "upper bound on e3/e2", low=0.0, high=1.0),
         Param("min_neighbors", "int", 5, "fewest neighbours for a scatter / an NMS ball", low=1, high=512),
         MAX_NN_PARAM,
+        voxel_param(0.0),  # ISS on a cube degrades with thinning (tests); off by default
         Param("centre", "str", "mean", "covariance about the neighbours' mean (Open3D) or the point (Zhong)",
               choices=CENTRES),
     )
