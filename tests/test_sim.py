@@ -245,3 +245,13 @@ def test_icp_between_consecutive_urban_scans_recovers_the_motion(i):
     err = np.linalg.inv(truth) @ est
     assert np.linalg.norm(err[:3, 3]) < 0.05
     assert np.degrees(np.arccos(np.clip((np.trace(err[:3, :3]) - 1) / 2, -1, 1))) < 0.5
+
+
+def test_unusable_cache_folder_falls_back_to_simulating(tmp_path, monkeypatch):
+    blocker = tmp_path / "not-a-folder"
+    blocker.write_text("x")
+    monkeypatch.setenv("LWBENCH_CACHE", str(blocker))
+    with pytest.warns(UserWarning, match="scan cache"):
+        ds = SimDataset(frames=1)
+    assert ds._cache is None
+    assert _same(ds[0], SimDataset(frames=1, cache=False)[0])
