@@ -105,10 +105,10 @@ class Harris3D(KeypointSelector):
     point with a response, each tier ranked by response; last, points without a valid normal.
     Exactly ``budget`` points come back.
 
-    Default radius 0.5 m: PCL's Harris examples on outdoor scans use ``setRadius(0.5)``; it is
-    ~2 HDL-64E ring spacings at 30 m and one VLP-16 ring spacing at ~15 m, so neighbourhoods
-    span more than one ring and normals are defined on both sensors. ``max_nn=16`` caps the
-    dense near field (a KITTI frame has a median of 64+ points within 0.5 m).
+    Default radius 0.5 m (PCL leaves it to the user): ~2 HDL-64E ring spacings at 30 m and one
+    VLP-16 ring spacing at ~15 m, so neighbourhoods span more than one ring and normals are
+    defined on both sensors. ``max_nn=16`` caps the dense near field (a KITTI frame has a
+    median of 64+ points within 0.5 m); ``voxel=0.1`` thins it first (see ``voxel_param``).
     """
 
     name = "harris3d"

@@ -138,7 +138,7 @@ class SIFT3D(KeypointSelector):
     Defaults: ``min_scale`` 0.2 m, 4 octaves (0.2-1.6 m base scales, Gaussians 0.16-4 m),
     3 scales per octave (Lowe's and PCL's tutorial value). PCL's tutorial uses
     ``min_scale = 0.01`` for a table-top object; for street scans 0.2 m is about one HDL-64E
-    ring spacing at 30 m and half a VLP-16 ring spacing at 20 m, keeps octave 0 of a KITTI
+    ring spacing at 30 m and one VLP-16 ring spacing at 6 m, keeps octave 0 of a KITTI
     frame at ~32k voxels, and the octaves cover poles and kerbs (0.2 m) up to cars and
     building corners (several metres). ``max_nn`` caps the Gaussian's support at the largest
     scales of an octave where the scan is dense (PCL's support is every point within

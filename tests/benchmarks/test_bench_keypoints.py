@@ -7,6 +7,7 @@ interleaved run by run (``extra_info["vs_open3d_iss"]``: median of the per-run r
 
     /work/venv/bin/pytest tests/benchmarks/test_bench_keypoints.py -m benchmark --benchmark-enable
     /work/venv/bin/python tests/benchmarks/test_bench_keypoints.py [RUNS]   # the docs table
+    /work/venv/bin/python tests/benchmarks/test_bench_keypoints.py agree    # ISS vs Open3D
 """
 
 from __future__ import annotations
@@ -72,6 +73,36 @@ def test_bench_keypoints(benchmark, name):
     benchmark.extra_info["open3d_iss_s"] = float(np.median(ref))
 
 
+def agreement(max_nns: tuple[int, ...] = (16, 32, 64, 128)) -> None:
+    """Our ISS keypoints vs Open3D's on the KITTI frame, same radii (Open3D's heuristic)."""
+    from lwbench_plugins.keypoints._geometry import hybrid_neighbourhood
+    from lwbench_plugins.keypoints.iss import iss_response
+    from scipy.spatial import cKDTree
+
+    pts = scan().points
+    tree = cKDTree(pts)
+    resolution = float(tree.query(pts, k=2, workers=-1)[0][:, 1].mean())
+    salient, non_max = 6 * resolution, 4 * resolution
+    t = time.perf_counter()
+    ref_pts = np.asarray(open3d_iss(scan(), salient, non_max).points)
+    t_ref = time.perf_counter() - t
+    dist, ref = tree.query(ref_pts)  # Open3D returns points; its indices are the exact matches
+    assert dist.max() == 0.0
+    ref = set(ref.tolist())
+    print(f"radii {salient:.3f} / {non_max:.3f} m (6x / 4x mean NN distance {resolution:.4f} m); "
+          f"Open3D: {len(ref)} keypoints in {t_ref:.2f} s")
+    print("| max_nn | balls capped | our keypoints | common | recall of Open3D's | precision | Jaccard | time s |")
+    print("|---|---|---|---|---|---|---|---|")
+    for k in max_nns:
+        capped = float((hybrid_neighbourhood(pts, k, salient).count == k).mean())
+        t = time.perf_counter()
+        ours = set(np.flatnonzero(iss_response(pts, salient, non_max, max_nn=k)[2]).tolist())
+        dt = time.perf_counter() - t
+        common = len(ours & ref)
+        print(f"| {k} | {capped:.1%} | {len(ours)} | {common} | {common / len(ref):.3f} | "
+              f"{common / len(ours):.3f} | {common / len(ours | ref):.3f} | {dt:.2f} |", flush=True)
+
+
 def main(runs: int = 7) -> None:
     frame = scan()
     print(f"KITTI 00 frame 0, {len(frame)} points, budget {BUDGET['points']} points, median of {runs} runs")
@@ -82,7 +113,21 @@ def main(runs: int = 7) -> None:
         ours, ref = paired_times(name, runs)
         print(f"| {name} | {np.median(ours):.3f} | {np.median(ref):.3f} | {np.median(ours / ref):.2f} "
               f"| {TARGET_S[name]} | {PCL_S[name]} |", flush=True)
+    print("\nkeypoints before top-up (tier 0) with the defaults, budget", BUDGET["points"])
+    for name, cls in SELECTORS.items():
+        sel = cls(**BUDGET)
+        leaf = sel.config.get("voxel") or 0.0
+        pts = frame.points
+        if leaf > 0:
+            from lwbench_plugins.keypoints._base import voxel_firsts
+
+            pts = pts[voxel_firsts(pts, leaf)]
+        tier, _ = sel.rank(pts)
+        print(f"- {name}: {int((tier == 0).sum())} of {len(pts)} points searched")
 
 
 if __name__ == "__main__":
-    main(int(sys.argv[1]) if len(sys.argv) > 1 else 7)
+    if sys.argv[1:] == ["agree"]:
+        agreement()
+    else:
+        main(int(sys.argv[1]) if len(sys.argv) > 1 else 7)
