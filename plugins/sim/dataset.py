@@ -23,7 +23,7 @@ from .scenes import SCENES, Scene
 
 # Bump whenever a change alters generated scans: it is part of the cache key and of identity(),
 # so results computed on an older simulator are never mistaken for results on the new one.
-SIM_VERSION = "4"
+SIM_VERSION = "5"
 
 
 @functools.lru_cache(maxsize=4)

@@ -7,7 +7,9 @@ What a real sensor adds on top of geometry is modelled per ray:
 - Gaussian range noise (sigma in metres) on the hit distance, applied *before* the range window
   (the sensor reports and clips the measured range, not the true one);
 - random dropouts: a global probability plus a per-material one (glass, foliage);
-- intensity = material reflectivity x |cos(incidence)| (Lambertian), in [0, 1];
+- intensity = material reflectivity x |cos(incidence)|^(1/4), in [0, 1]: real scanners'
+  intensities depend only weakly on the incidence angle (KITTI's road at grazing incidence is
+  as bright as its facades); a Lambertian cos made grazing ground returns ~10x too dark;
 - per-point ``ring`` (beam row, lowest beam = 0) and ``time`` (seconds since the start of the
   sweep: the azimuth column's firing time; columns start at azimuth -pi, behind the sensor);
 - optional motion distortion: each column is cast from the pose at its firing time and the
@@ -123,7 +125,7 @@ class Raycaster:
         idx, prim, r = idx[keep], prim[keep], r[keep]
         normals = hit["primitive_normals"].numpy()[idx]
         cos = np.abs(np.einsum("ij,ij->i", normals, world_dirs[idx]))
-        intensity = np.clip(self.mesh.reflectivity[prim] * cos, 0.0, 1.0).astype(np.float32)
+        intensity = np.clip(self.mesh.reflectivity[prim] * np.sqrt(np.sqrt(cos)), 0.0, 1.0).astype(np.float32)
         if column_poses is None:
             points = (dirs[idx] * r[:, None]).astype(np.float32)
         else:

@@ -7,8 +7,10 @@ the share of ground points, defined the same way for both as points less than 0.
 ground plane under the sensor, i.e. ``z < -(1.73 - 0.25) m`` in the sensor frame (KITTI's
 Velodyne is mounted 1.73 m above the road; the simulated car uses the same height). The
 tunnel's points per scan are compared with the VSGP paper's "around 10K to 50K points" per
-observation. Last, ICP (Open3D point-to-plane, 0.25 m voxels, identity start) between
-consecutive urban scans against the true relative motion (1 m per scan at 10 m/s).
+observation. Intensities are compared with the one real HDL-64E scan that has them (KITTI
+object 000008, cropped to the camera's view). Last, ICP (Open3D point-to-plane, 0.25 m voxels,
+identity start) between consecutive urban scans against the true relative motion (1 m per scan
+at 10 m/s).
 """
 
 from __future__ import annotations
@@ -22,7 +24,9 @@ from lwbench.io import read_kitti_bin
 
 from .dataset import SimDataset
 
-KITTI = Path(__file__).resolve().parents[2].parent / "shared/data/real/kitti00_frames0-1/000000.bin"
+REAL = Path(__file__).resolve().parents[2].parent / "shared/data/real"
+KITTI = REAL / "kitti00_frames0-1/000000.bin"
+KITTI_INTENSITY = REAL / "kitti_object_000008/000008.bin"  # has intensity; cropped to +-45 deg ahead
 GROUND_Z = -(1.73 - 0.25)
 DECILES = (10, 20, 30, 40, 50, 60, 70, 80, 90)
 
@@ -93,6 +97,23 @@ def main(argv: list[str] | None = None) -> None:
             f"{counts.min():,} / {np.median(counts):,.0f} / {counts.mean():,.0f} / {counts.max():,} |"
         )
 
+
+    if KITTI_INTENSITY.exists():
+        real = read_kitti_bin(KITTI_INTENSITY)
+        sim = urban.simulate(0)
+        azimuth = np.arctan2(sim.points[:, 1], sim.points[:, 0])
+        ahead = (sim.points[:, 0] > 0) & (np.abs(azimuth) < np.radians(45))
+        print()
+        print("| intensity | points | quartiles 10/25/50/75/90 % | mean | median ground / other |")
+        print("|---|---|---|---|---|")
+        for name, pts, inten in (
+            (f"KITTI object `{KITTI_INTENSITY.name}` (real, camera view)", real.points, real.intensity),
+            ("sim urban frame 0, +-45 deg ahead", sim.points[ahead], sim.intensity[ahead]),
+        ):
+            q = " / ".join(f"{v:.2f}" for v in np.percentile(inten, [10, 25, 50, 75, 90]))
+            g = pts[:, 2] < GROUND_Z
+            print(f"| {name} | {len(pts):,} | {q} | {inten.mean():.2f} | "
+                  f"{np.median(inten[g]):.2f} / {np.median(inten[~g]):.2f} |")
 
     errors = []
     for i in range(0, len(urban) - 1, args.every):

@@ -20,9 +20,9 @@ from .base import Scene
 from .mesh import Material, MeshBuilder
 from .trajectory import Path, waypoint_path
 
-ASPHALT = Material(0.12)
-PAINT = Material(0.8)
-CONCRETE = Material(0.35)
+ASPHALT = Material(0.4)
+PAINT = Material(0.9)
+CONCRETE = Material(0.45)
 GLASS = Material(0.08, dropout=0.5)  # mostly transmits: the return is often lost
 METAL = Material(0.5)
 BARK = Material(0.3)
