@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from lwbench_plugins.keypoints import ISS, SIFT3D, Harris3D, KeypointError
-from lwbench_plugins.keypoints._base import MIN_POINTS, top_k
+from lwbench_plugins.keypoints._base import MIN_POINTS, top_k, voxel_firsts
 from lwbench_plugins.keypoints._geometry import eigvals_sym6, eigvec_sym6, hybrid_neighbourhood
 from lwbench_plugins.keypoints.iss import iss_response
 from scipy.spatial import cKDTree
@@ -169,6 +169,16 @@ def test_budget_is_met_on_a_real_scan(cls, budget, kitti_quarter):
     idx = cls(**budget).select(frame(kitti_quarter))
     assert abs(len(idx) - want) <= 0.02 * want
     assert len(np.unique(idx)) == len(idx) and idx.min() >= 0 and idx.max() < n
+
+
+def test_voxel_thinning_detects_on_one_point_per_voxel(kitti_quarter):
+    f = frame(kitti_quarter)
+    reps = voxel_firsts(f.points, 0.5)
+    assert 1_000 < len(reps) < len(f) // 2
+    idx = Harris3D(points=500, voxel=0.5).select(f)
+    assert set(idx.tolist()) <= set(reps.tolist())  # budget below the voxel count: only detections
+    over = Harris3D(ratio=0.95, voxel=0.5).select(f)  # above it: every detection, then the rest
+    assert len(over) == round(0.95 * len(f)) and set(reps.tolist()) <= set(over.tolist())
 
 
 @pytest.mark.parametrize("cls", SELECTORS, ids=lambda c: c.name)
