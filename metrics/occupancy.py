@@ -33,6 +33,9 @@ __all__ = ["OCCUPANCY_PARAMS", "occupied_voxels", "compare_occupancy", "voxel_ke
 
 OCCUPANCY_PARAMS: dict[str, Any] = {
     "resolutions": (0.2, 0.05),  # m; the unsuffixed ids use the first
+    # m, OctoMap's insertion "maxrange": returns beyond it add no hit, their rays clear free
+    # space up to it. Bounds the work per scan (and 5 cm cells are meaningless at 60 m anyway).
+    "max_range": 30.0,
     "l_hit": math.log(0.7 / 0.3),
     "l_miss": math.log(0.4 / 0.6),
 }
@@ -50,6 +53,11 @@ def voxel_keys(points: np.ndarray, voxel: float) -> np.ndarray:
     return (idx[:, 0] << (2 * _BITS)) | (idx[:, 1] << _BITS) | idx[:, 2]
 
 
+def _rotate(rotation: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """``points @ rotation.T`` computed as ``(rotation @ points.T).T``, ~20x faster in numpy for (N,3)."""
+    return (rotation @ points.T).T
+
+
 def _key_centres(keys: np.ndarray, voxel: float) -> np.ndarray:
     idx = np.stack([(keys >> (2 * _BITS)) & _MASK, (keys >> _BITS) & _MASK, keys & _MASK], axis=1)
     return (idx - _OFF + 0.5) * voxel
@@ -62,6 +70,7 @@ def occupied_voxels(
     voxel: float,
     l_hit: float = OCCUPANCY_PARAMS["l_hit"],
     l_miss: float = OCCUPANCY_PARAMS["l_miss"],
+    max_range: float = OCCUPANCY_PARAMS["max_range"],
 ) -> np.ndarray:
     """Sorted keys of the voxels the log-odds map says are occupied.
 
@@ -71,8 +80,9 @@ def occupied_voxels(
     poses = np.asarray(poses, dtype=np.float64)
     hit_keys = []
     for s, T in zip(scans, poses, strict=True):
-        world = np.asarray(s, dtype=np.float64) @ T[:3, :3].T + T[:3, 3]
-        hit_keys.append(np.unique(voxel_keys(world, voxel)))
+        s = np.asarray(s, dtype=np.float64)
+        s = s[np.einsum("ij,ij->i", s, s) <= max_range * max_range]
+        hit_keys.append(np.unique(voxel_keys(_rotate(T[:3, :3], s) + T[:3, 3], voxel)))
     if not hit_keys or sum(len(h) for h in hit_keys) == 0:
         return np.zeros(0, dtype=np.int64)
     cand, hits = np.unique(np.concatenate(hit_keys), return_counts=True)
@@ -93,9 +103,9 @@ def occupied_voxels(
         q_range = np.linalg.norm(q, axis=1)
         ray_dir = np.zeros((len(flat_index), 3), dtype=np.float32)
         ray_range = np.zeros(len(flat_index), dtype=np.float32)
-        ray_dir[valid] = (q / q_range[:, None]) @ T[:3, :3].T
-        ray_range[valid] = q_range
-        reach = float(q_range.max())
+        ray_dir[valid] = _rotate(T[:3, :3], q / q_range[:, None])
+        ray_range[valid] = np.minimum(q_range, max_range)
+        reach = min(float(q_range.max()), max_range)
         # Candidates are sorted by x index first: slice those within the scan's reach in x.
         ix0 = int(math.floor((T[0, 3] - reach) / voxel)) + _OFF
         ix1 = int(math.floor((T[0, 3] + reach) / voxel)) + _OFF
@@ -107,7 +117,9 @@ def occupied_voxels(
         r2 = np.einsum("ij,ij->i", rel, rel)
         sel = np.flatnonzero(r2 < reach * reach)
         rel = rel[sel]
-        rows, cols, _ = sensor.cells(rel @ T[:3, :3].astype(np.float32))  # the centre's ray-grid cell
+        rows, cols, _ = sensor.cells(
+            _rotate(T[:3, :3].T.astype(np.float32), rel)
+        )  # the centre's ray-grid cell
         cell = rows * sensor.n_azimuth + cols
         u = ray_dir[cell]
         # Slab test: where the return's ray enters and leaves the (axis-aligned) voxel.

@@ -88,8 +88,8 @@ class LocalizationMetric(SequenceMetric):
         gt, n_original = _ground_truth(seq)
         world_map = build_map(seq.decoded, gt, self.params)
         out = pose_metrics(gt, track_against_map(seq.decoded, gt[0], world_map, self.params))
-        out["map_points"] = float(len(world_map.points))
-        out["map_share"] = len(world_map.points) / n_original if n_original else None
+        out["map_points"] = float(len(world_map))
+        out["map_share"] = len(world_map) / n_original if n_original else None
         return out
 
 
@@ -145,10 +145,10 @@ class OccupancyMetric(SequenceMetric):
 
             def original_map(v=v):
                 scans = [seq.original(k).points for k in range(len(seq.frame_indices))]
-                return occupied_voxels(scans, gt, sensor, v, p["l_hit"], p["l_miss"])
+                return occupied_voxels(scans, gt, sensor, v, p["l_hit"], p["l_miss"], p["max_range"])
 
-            ref = _cached(("occ", v, p["l_hit"], p["l_miss"]) + _seq_key(seq), original_map)
-            dec = occupied_voxels(seq.decoded, gt, sensor, v, p["l_hit"], p["l_miss"])
+            ref = _cached(("occ", v, p["l_hit"], p["l_miss"], p["max_range"]) + _seq_key(seq), original_map)
+            dec = occupied_voxels(seq.decoded, gt, sensor, v, p["l_hit"], p["l_miss"], p["max_range"])
             for name, value in compare_occupancy(ref, dec).items():
                 out[f"occ_{name}{_suffix(v, i == 0)}"] = value
         return out

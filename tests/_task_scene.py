@@ -61,7 +61,7 @@ def scan(
 ) -> np.ndarray:
     """Ray-cast one sweep; returns float32 points in the sensor frame."""
     d = sensor.ray_directions().reshape(-1, 3)
-    dw = d @ pose[:3, :3].T
+    dw = (pose[:3, :3] @ d.T).T
     rays = np.concatenate([np.broadcast_to(pose[:3, 3], dw.shape), dw], axis=1).astype(np.float32)
     t = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy().astype(np.float64)
     ok = np.isfinite(t) & (t >= sensor.min_range) & (t <= sensor.max_range)
