@@ -59,9 +59,15 @@ class Neighbourhood:
         """Number of neighbours (including the point itself) per point."""
         return self.valid.sum(axis=1)
 
-    def within(self, radius: float) -> Neighbourhood:
-        """The sub-neighbourhood closer than ``radius`` (a smaller ball, same arrays)."""
+    def within(self, radius: float, refill: bool = True) -> Neighbourhood:
+        """The sub-neighbourhood closer than ``radius`` (a smaller ball, same arrays).
+
+        ``refill=False`` only narrows ``valid`` (cheaper): enough for NMS, which reads only the
+        valid slots, but not for :func:`scatter`, which needs invalid slots to hold the point.
+        """
         valid = self.valid & (self.dist < radius)
+        if not refill:
+            return Neighbourhood(self.idx, valid, self.dist)
         fill = self.idx[:, :1]
         return Neighbourhood(np.where(valid, self.idx, fill), valid, np.where(valid, self.dist, np.inf))
 
@@ -79,7 +85,7 @@ def hybrid_neighbourhood(points: np.ndarray, max_nn: int, radius: float) -> Neig
     if k == 1:
         dist, idx = dist[:, None], idx[:, None]
     valid = idx < n
-    idx = np.where(valid, idx, np.arange(n)[:, None])
+    np.copyto(idx, np.arange(n)[:, None], where=~valid)  # in place: no second (N, K) array
     return Neighbourhood(idx=idx, valid=valid, dist=dist)
 
 
@@ -101,7 +107,9 @@ def outer_sums(v: np.ndarray) -> np.ndarray:
     """
     x, y, z = v
     rows = [(x, x), (x, y), (x, z), (y, y), (y, z), (z, z)]
-    return np.stack([np.einsum("nk,nk->n", a, b, dtype=np.float64) for a, b in rows])
+    # Summed in the input's precision (float32: 2x faster than casting every operand); K is
+    # small and offsets are local, so the sums keep ~7 significant digits.
+    return np.stack([np.einsum("nk,nk->n", a, b) for a, b in rows]).astype(np.float64)
 
 
 def scatter(points: np.ndarray, nb: Neighbourhood) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -112,7 +120,7 @@ def scatter(points: np.ndarray, nb: Neighbourhood) -> tuple[np.ndarray, np.ndarr
     """
     d = gather_offsets(points, nb)
     count = nb.valid.sum(axis=1).astype(np.float64)
-    mean = d.sum(axis=2, dtype=np.float64) / np.maximum(count, 1.0)
+    mean = d.sum(axis=2).astype(np.float64) / np.maximum(count, 1.0)
     s = outer_sums(d)
     s -= count * outer6(mean)
     return count, mean, s

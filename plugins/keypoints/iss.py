@@ -4,7 +4,7 @@ Per point: the scatter matrix of its neighbours within ``salient_radius`` (skipp
 than ``min_neighbors``); eigenvalues ``e1 >= e2 >= e3``; the point is salient when
 ``e2/e1 < gamma_21`` and ``e3/e2 < gamma_32`` (no two principal spreads alike, so the local
 frame is well defined), with saliency ``e3``. Keypoints are salient points whose ``e3`` no
-neighbour within ``non_max_radius`` exceeds (ties kept) and that have at least
+neighbour within ``non_max_radius`` exceeds and that have at least
 ``min_neighbors`` such neighbours. Defaults ``gamma = 0.975``, ``min_neighbors = 5`` are Open3D's
 and PCL's.
 
@@ -61,7 +61,7 @@ def iss_response(
     with np.errstate(divide="ignore", invalid="ignore"):
         salient = has_scatter & (e2 / e1 < gamma_21) & (e3 / e2 < gamma_32)
     third = np.where(salient, e3, 0.0)
-    nb_nm = nb_all.within(non_max_radius) if non_max_radius < max(salient_radius, non_max_radius) else nb_all
+    nb_nm = nb_all.within(non_max_radius, refill=False) if non_max_radius < salient_radius else nb_all
     beaten_at = first_beaten(third, nb_nm)
     keypoint = (third > 0.0) & (nb_nm.count >= min_neighbors) & (beaten_at == nb_nm.idx.shape[1])
     keypoint = radius_nms(points, third, keypoint, non_max_radius)
