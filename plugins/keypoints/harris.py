@@ -120,7 +120,7 @@ class Harris3D(KeypointSelector):
         voxel_param(0.1),
         Param("method", "str", "harris", "response (PCL ResponseMethod)", choices=METHODS),
         Param("k", "float", 0.04, "Harris constant (PCL hard-codes 0.04)", low=0.0, high=0.25),
-        Param("threshold", "float", 0.0, "PCL response threshold for tier-0 keypoints", low=-1e9, high=1e9),
+        Param("threshold", "float", 0.0, "PCL response threshold for tier-0 keypoints"),
     )
 
     def rank(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
