@@ -8,7 +8,7 @@ ellipsoid (gira3d's sampler), and can put them back on the sensor's rays.
 Body layout (little endian)::
 
     dtype     u8    0 = float32, 1 = float16
-    n_points  u32   points in the scan (= points to draw on decode)
+    n_points  u32   points to draw on decode: the scan's count times ``samples`` (default 1)
     k_occ     u32   components of the occupied-space mixture
     k_free    u32   components of the free-space mixture (0 = option off)
     params    (k_occ + k_free) x 10 x dtype, per component:
@@ -110,6 +110,8 @@ class GMMCodec(RepresentationCodec):
         Param("dtype", "str", "float32", "precision of the 10 numbers per component",
               choices=tuple(_DTYPES)),
         Param("truncate", "float", 3.0, "decode draws stay inside this many sigma", low=0.5, high=10.0),
+        Param("samples", "float", 1.0, "points drawn on decode per point of the scan (more draws "
+              "fill more range-image cells when reproject is on)", low=0.0, high=16.0),
         Param("reproject", "bool", False,
               "re-project decoded points onto the sensor's range image (one per cell, nearest)"),
         Param("free_components", "int", 0, "components of the free-space mixture (0 = off)",
@@ -160,7 +162,8 @@ class GMMCodec(RepresentationCodec):
         if cfg["dtype"] == "float16":
             tiny = np.finfo(np.float16).tiny
             params[:, [4, 6, 9]] = np.maximum(params[:, [4, 6, 9]], tiny)  # keep L's diagonal > 0
-        body = _HEAD.pack(dt_code, n, k_occ, k_free) + params.astype(dt).tobytes()
+        n_draw = min(int(round(cfg["samples"] * n)), _MAX_POINTS)
+        body = _HEAD.pack(dt_code, n_draw, k_occ, k_free) + params.astype(dt).tobytes()
         meta = {"truncate": cfg["truncate"], "seed": cfg["seed"], "reproject": cfg["reproject"]}
         if cfg["reproject"]:
             meta["sensor"] = frame.sensor.to_dict()

