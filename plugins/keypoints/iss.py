@@ -65,10 +65,9 @@ def iss_response(
     beaten_at = first_beaten(third, nb_nm)
     keypoint = (third > 0.0) & (nb_nm.count >= min_neighbors) & (beaten_at == nb_nm.idx.shape[1])
     keypoint = radius_nms(points, third, keypoint, non_max_radius)
-    tier = nms_levels(beaten_at, nb_nm.idx.shape[1], salient)  # 1..L smaller NMS balls, L+1 rest
-    last = int(tier.max(initial=1))
-    tier[~salient] = last + 1
-    tier[~has_scatter] = last + 2
+    # 1..L: salient maxima of smaller NMS balls, L+1: other salient, L+2: not salient
+    tier = nms_levels(beaten_at, nb_nm.idx.shape[1], salient)
+    tier[~has_scatter] = tier.max() + 1  # too few neighbours for a scatter: last
     tier[keypoint] = 0
     return np.where(has_scatter, e3, 0.0), salient, keypoint, has_scatter, tier
 
