@@ -1,7 +1,7 @@
 #!/bin/bash
-# Rate-distortion runs behind docs/codecs.md: draco, rangeimage, voxel (+ raw, and VSGP for
+# Rate-distortion runs behind docs/codecs.md: draco, rangeimage, voxel (+ raw; VSGP and GMM for
 # context) on the simulated tunnel and the real Ouster / KITTI samples.
-#   STORE=/tmp/rd.sqlite bash docs/codecs_rd.sh
+#   STORE=/tmp/rd.sqlite [TARGETS="sim ouster kitti"] [CONTEXT=1] bash docs/codecs_rd.sh
 #   lwbench leaderboard --store /tmp/rd.sqlite --format md --columns bytes,ratio,range_rmsd,coverage,chamfer,encode_ms,decode_ms
 set -euo pipefail
 S=${STORE:-/tmp/rd.sqlite}
@@ -19,11 +19,21 @@ run() {  # $1 = dataset; the rest: dataset options
      --codec rangeimage --param rangeimage.refine=none \
      --codec voxel --param voxel.encoding=quantized --param voxel.quant_step=0.01 >/dev/null
 }
-run sim --frames 5
-run "$REAL/ouster_os1-128_seq3"
-run "$REAL/kitti00_frames0-1" --dataset-param sensor=hdl64e
-# VSGP (another plugin, at its defaults) for context: seconds per frame, so fewer frames.
-$L run --dataset sim --frames 5 --no-sequence-metrics --store "$S" --codec vsgp >/dev/null
-$L run --dataset "$REAL/ouster_os1-128_seq3" --frames 1 --no-sequence-metrics --store "$S" --codec vsgp >/dev/null
-$L run --dataset "$REAL/kitti00_frames0-1" --dataset-param sensor=hdl64e --frames 1 --no-sequence-metrics \
-   --store "$S" --codec vsgp >/dev/null
+for target in ${TARGETS:-sim ouster kitti}; do
+  case $target in
+    sim) run sim --frames 5 ;;
+    ouster) run "$REAL/ouster_os1-128_seq3" ;;
+    kitti) run "$REAL/kitti00_frames0-1" --dataset-param sensor=hdl64e ;;
+  esac
+done
+# VSGP and GMM (other plugins, at their defaults) for context: seconds to minutes per frame,
+# so fewer frames, and only when asked (CONTEXT=1).
+if [ "${CONTEXT:-0}" = 1 ]; then
+  for codec in vsgp gmm; do
+    $L run --dataset sim --frames 5 --no-sequence-metrics --store "$S" --codec $codec >/dev/null || true
+    $L run --dataset "$REAL/ouster_os1-128_seq3" --frames 1 --no-sequence-metrics --store "$S" \
+       --codec $codec >/dev/null || true
+    $L run --dataset "$REAL/kitti00_frames0-1" --dataset-param sensor=hdl64e --frames 1 \
+       --no-sequence-metrics --store "$S" --codec $codec >/dev/null || true
+  done
+fi
