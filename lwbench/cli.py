@@ -239,7 +239,7 @@ def run(
                     "[yellow]interrupted:[/] finished rows are stored; run the same command again to resume"
                 )
                 raise typer.Exit(130)
-            entries = build_leaderboard(results, dataset=spec.label, sort=sort, defaults=_defaults(reg))
+            entries = build_leaderboard(results, dataset=runner.dataset_id, sort=sort, defaults=_defaults(reg))
             wanted = {cfg.label for cfg in configs}
             console.print(f"dataset: {spec.label}")
             _print_table([e for e in entries if e.full_label in wanted], sort)

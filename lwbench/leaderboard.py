@@ -69,6 +69,7 @@ class LeaderboardEntry:
     stats: dict[str, dict[str, float | None]] = field(default_factory=dict)
     errors: list[str] = field(default_factory=list)
     defaults: dict = field(default_factory=dict, repr=False)
+    dataset_id: str = ""
 
     @property
     def full_label(self) -> str:
@@ -86,6 +87,7 @@ class LeaderboardEntry:
     def as_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {
             "dataset": self.dataset,
+            "dataset_id": self.dataset_id,
             "codec": self.codec,
             "params": self.params,
             "frames": self.frames,
@@ -126,11 +128,18 @@ def build_leaderboard(
     """Entries sorted by ``sort`` (best first). ``defaults`` (codec -> declared defaults) only
     shortens labels to the parameters that differ."""
     groups: dict[tuple, list[ResultRow]] = defaultdict(list)
+    labels: dict[str, str] = {}
     for row in store.rows(dataset=dataset):
-        groups[(row.dataset, row.codec, json.dumps(row.params, sort_keys=True))].append(row)
+        # Group by the data's identity, not its label: the same label over changed data (a new
+        # simulator version, edited files) is a different dataset and must not be averaged in.
+        groups[(row.dataset_id, row.codec, json.dumps(row.params, sort_keys=True))].append(row)
+        labels[row.dataset_id] = row.dataset
+    ambiguous = {lab for lab in labels.values() if list(labels.values()).count(lab) > 1}
     entries = []
-    for (ds, codec, params_json), rows in groups.items():
+    for (ds_id, codec, params_json), rows in groups.items():
+        ds = labels[ds_id] if labels[ds_id] not in ambiguous else f"{labels[ds_id]} [{ds_id}]"
         entry = LeaderboardEntry(ds, codec, json.loads(params_json), defaults=(defaults or {}).get(codec, {}))
+        entry.dataset_id = ds_id
         per_metric: dict[str, list[float]] = defaultdict(list)
         for r in rows:
             if r.status != "ok":

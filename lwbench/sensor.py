@@ -160,7 +160,7 @@ class SensorModel:
             return {"preset": self.name}
         return {
             "name": self.name,
-            "elevations_deg": [round(e, 5) for e in self.elevations_deg],
+            "elevations_deg": list(self.elevations_deg),  # full precision: from_dict(to_dict(s)) == s
             "azimuth_step_deg": self.azimuth_step_deg,
             "min_range": self.min_range,
             "max_range": self.max_range,

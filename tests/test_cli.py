@@ -102,3 +102,17 @@ def test_inspect_payload_scan_and_store(tmp_path, store, real_data, vlp16_frame)
     assert res.exit_code == 2 and "checksum" in res.output
     assert "KITTI" in invoke("inspect", str(real_data / "kitti00_frames0-1")).stdout.upper()
     assert "results store" in invoke("inspect", str(store)).stdout
+
+
+def test_changed_data_under_the_same_label_is_not_averaged_in(tmp_path):
+    import numpy as np
+
+    from lwbench.leaderboard import build_leaderboard
+    from lwbench.store import ResultRow, ResultStore
+
+    with ResultStore(tmp_path / "r.sqlite") as store:
+        for ds_id, value in (("sim:v1", 1.0), ("sim:v2", 3.0)):
+            store.put(ResultRow("frame", "sim", ds_id, 0, "raw", "1", {}, "ok", {"bytes": value}, 0))
+        entries = build_leaderboard(store)
+    assert sorted(e.value("bytes") for e in entries) == [1.0, 3.0]
+    assert len({e.dataset for e in entries}) == 2 and not np.isnan(entries[0].value("bytes"))
