@@ -59,7 +59,7 @@ def test_leaderboard_json_contract(store):
 
 def test_leaderboard_csv(store):
     lines = invoke("leaderboard", "--store", str(store), "--format", "csv").stdout.splitlines()
-    assert lines[0].startswith("dataset,codec,params,frames,failures") and len(lines) == 4
+    assert lines[0].startswith("dataset,dataset_id,codec,params,frames,failures") and len(lines) == 4
 
 
 def test_rerun_is_a_cache_hit(store, real_data):
