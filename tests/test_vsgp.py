@@ -168,20 +168,28 @@ def test_empty_and_tiny_scans():
     assert pts.ndim == 2 and pts.shape[1] == 3
 
 
-def test_rq_kernel_matches_gpytorch():
+def test_rq_kernel_is_gpytorch_rq_on_the_circle_embedding():
     import gpytorch
 
-    kernel = gpytorch.kernels.ScaleKernel(gpytorch.kernels.RQKernel(ard_num_dims=2)).double()
-    kernel.base_kernel.lengthscale = torch.tensor([[0.3, 0.05]])
+    kernel = gpytorch.kernels.ScaleKernel(gpytorch.kernels.RQKernel(ard_num_dims=3)).double()
+    kernel.base_kernel.lengthscale = torch.tensor([[0.3, 0.3, 0.05]])
     kernel.base_kernel.alpha = torch.tensor(0.7)
     kernel.outputscale = torch.tensor(4.0)
     gen = torch.Generator().manual_seed(0)
-    x1 = torch.rand(40, 2, generator=gen, dtype=torch.float64)
-    x2 = torch.rand(30, 2, generator=gen, dtype=torch.float64)
+    x1 = (torch.rand(40, 2, generator=gen, dtype=torch.float64) - 0.5) * torch.tensor([2 * math.pi, 0.5])
+    x2 = (torch.rand(30, 2, generator=gen, dtype=torch.float64) - 0.5) * torch.tensor([2 * math.pi, 0.5])
+
+    def embed(x: torch.Tensor) -> torch.Tensor:
+        return torch.stack([torch.cos(x[:, 0]), torch.sin(x[:, 0]), x[:, 1]], dim=1)
+
     ours = rq_cross(x1, x2, Hyper(0.3, 0.05, 0.7, 4.0, 0.01))
     with torch.no_grad():
-        ref = kernel(x1, x2).to_dense()
+        ref = kernel(embed(x1), embed(x2)).to_dense()
     torch.testing.assert_close(ours, ref, rtol=1e-6, atol=1e-9)
+    # Neighbours across the seam are neighbours.
+    seam = rq_cross(torch.tensor([[math.pi - 0.01, 0.0]]), torch.tensor([[-math.pi + 0.01, 0.0]]),
+                    Hyper(0.3, 0.05, 0.7, 4.0, 0.01))
+    assert float(seam) > 3.9
 
 
 def test_collapsed_bound_is_a_lower_bound_and_tight_when_z_equals_x():
@@ -233,3 +241,28 @@ def test_upsampled_decode_is_a_denser_superset(tunnel_f32):
     assert len(pts) > 1.8 * len(plain)  # azimuth doubles; between-beam rows are mostly judged uncertain
     dist, _ = cKDTree(pts).query(plain)
     assert np.percentile(dist, 99) < 0.002
+
+
+@pytest.mark.slow
+def test_lwbench_run_stores_vsgp_rows(tmp_path):
+    from typer.testing import CliRunner
+
+    from lwbench.cli import app
+
+    seq = tmp_path / "seq"
+    (seq / "velodyne").mkdir(parents=True)
+    for i in range(2):
+        frame = tunnel_frame(seed=10 + i)
+        xyzi = np.hstack([frame.points, np.zeros((len(frame), 1), np.float32)])
+        xyzi.astype(np.float32).tofile(seq / "velodyne" / f"{i:06d}.bin")
+    (seq / "sensor.json").write_text(json.dumps(get_sensor("vlp16").to_dict()))
+    store = tmp_path / "r.sqlite"
+    runner = CliRunner()
+    res = runner.invoke(app, ["run", "--dataset", str(seq), "--codec", "vsgp", "--param", "vsgp.body=float16",
+                              "--store", str(store)], catch_exceptions=False)
+    assert res.exit_code == 0, res.output
+    rows = json.loads(runner.invoke(app, ["leaderboard", "--store", str(store), "--format", "json"]).stdout)
+    (row,) = [r for r in rows if r["codec"] == "vsgp"]
+    assert row["frames"] == 2 and row["failures"] == 0
+    assert row["params"]["body"] == "float16"
+    assert row["coverage"] > 0.95 and row["range_rmsd"] < 0.08

@@ -84,7 +84,8 @@ class VSGPCodec(RepresentationCodec):
     def _device(self) -> torch.device:
         return resolve_device(self.config["device"])
 
-    def _fit_config(self) -> FitConfig:
+    def fit_config(self) -> FitConfig:
+        """The encoder settings these parameters select."""
         c = self.config
         return FitConfig(num_inducing=c["num_inducing"], adapt=c["adapt"], steps=c["steps"], lr=c["lr"],
                          tol=c["tol"], subsample=c["subsample"], fit_stride=c["fit_stride"],
@@ -96,7 +97,7 @@ class VSGPCodec(RepresentationCodec):
         r_oc = float(self.config["r_oc"] or sensor.max_range)
         ranges = sensor.project(frame.points).ranges
         t1 = time.perf_counter()
-        res = fit_scan(ranges, sensor, r_oc, self._fit_config(), self._device())
+        res = fit_scan(ranges, sensor, r_oc, self.fit_config(), self._device())
         t2 = time.perf_counter()
         body = pack_body(self.config["body"], res.z, res.u, res.hyper.as_list(), r_oc, _el_span(sensor))
         meta = {"sensor": sensor.to_dict(), "body": self.config["body"]}

@@ -5,6 +5,7 @@
     python -m lwbench_plugins.vsgp.experiments sweep  /tmp/simtunnel --frames 20
     python -m lwbench_plugins.vsgp.experiments timing /tmp/simtunnel --frames 20
     python -m lwbench_plugins.vsgp.experiments bodies /tmp/simtunnel --frames 10
+    python -m lwbench_plugins.vsgp.experiments table  /tmp/simtunnel --frames 20 --m 200 300 400 500 600
 
 Each prints a Markdown table. Scores follow lwbench's range-image definitions (DESIGN.md):
 RMSD over cells where both clouds have a return, coverage, false returns. Timings are medians
@@ -26,7 +27,7 @@ from lwbench import Frame, SensorModel
 
 from . import VSGPCodec
 from .decoder import auto_stride, predict_grid, query_grid, variance_mask
-from .encoder import FitConfig, fit_scan
+from .encoder import fit_scan
 from .gp import Hyper, rq_grid
 
 
@@ -70,7 +71,7 @@ def cmd_steps(frames: list[Frame], args: argparse.Namespace) -> None:
     for steps in args.steps:
         rows = []
         for fr in frames:
-            codec = VSGPCodec(steps=steps, tol=args.tol, device="cpu")
+            codec = VSGPCodec(**{**args.param, "steps": steps, "tol": args.tol, "device": "cpu"})
             t = time.perf_counter()
             data = codec.encode(fr)
             enc = time.perf_counter() - t
@@ -78,7 +79,7 @@ def cmd_steps(frames: list[Frame], args: argparse.Namespace) -> None:
             out = fr.sensor.project(codec.decode(data)).ranges
             rm, cov, _ = scores(fr, out)
             ranges = fr.sensor.project(fr.points).ranges
-            res = fit_scan(ranges, fr.sensor, fr.sensor.max_range, FitConfig(steps=steps, tol=args.tol),
+            res = fit_scan(ranges, fr.sensor, fr.sensor.max_range, codec.fit_config(),
                            torch.device("cpu")) if args.bound else None
             b = res.bounds[-1] if res is not None and res.bounds else float("nan")
             rows.append((tim["steps_run"], b, enc, tim["refine"], rm, cov))
@@ -94,7 +95,7 @@ def cmd_sweep(frames: list[Frame], args: argparse.Namespace) -> None:
     for fr in frames:
         s = fr.sensor
         ranges = s.project(fr.points).ranges
-        res = fit_scan(ranges, s, s.max_range, FitConfig(), torch.device("cpu"))
+        res = fit_scan(ranges, s, s.max_range, VSGPCodec(**args.param).fit_config(), torch.device("cpu"))
         az, el = query_grid(s, 1)
         stride = auto_stride(res.hyper, az[1] - az[0])
         mean, var = predict_grid(res.z, res.u, res.hyper, az, el, stride, torch.device("cpu"))
@@ -127,7 +128,7 @@ def cmd_timing(frames: list[Frame], args: argparse.Namespace) -> None:
     enc_stages = ["projection", "layout", "refine", "fit", "serialize"]
     dec_stages = ["parse", "predict", "sampling"]
     for m in args.m:
-        codec = VSGPCodec(num_inducing=m, steps=args.steps[0], device="cpu")
+        codec = VSGPCodec(**{**args.param, "num_inducing": m, "steps": args.steps[0], "device": "cpu"})
         codec.decode(codec.encode(frames[0]))  # warm-up
         e_rows, d_rows, enc, dec = [], [], [], []
         for fr in frames:
@@ -159,7 +160,7 @@ def cmd_bodies(frames: list[Frame], args: argparse.Namespace) -> None:
     for fmt in ("float32", "float16", "q16", "q16z"):
         rows = []
         for fr in frames:
-            codec = VSGPCodec(body=fmt, steps=args.steps[0], device="cpu")
+            codec = VSGPCodec(**{**args.param, "body": fmt, "steps": args.steps[0], "device": "cpu"})
             data = codec.encode(fr)
             out = fr.sensor.project(codec.decode(data)).ranges
             rows.append((len(data), *scores(fr, out)))
@@ -170,9 +171,36 @@ def cmd_bodies(frames: list[Frame], args: argparse.Namespace) -> None:
               f"{o[:, 2].mean():.3f} |")
 
 
+def cmd_table(frames: list[Frame], args: argparse.Namespace) -> None:
+    """Per-M accuracy with the paper's pointwise statistic too: mean and std of |r - r_hat|
+    over every cell both clouds have, pooled over frames (Table I's "9 +- 10 cm" reads so)."""
+    print("| M | bytes | range RMSD cm (mean ± std over frames) | pointwise abs error cm (mean ± std) | "
+          "coverage | false returns |")
+    print("|---|---|---|---|---|---|")
+    for m in args.m:
+        codec = VSGPCodec(**{**args.param, "num_inducing": m, "device": "cpu"})
+        sizes, rms, errs, covs, fas = [], [], [], [], []
+        for fr in frames:
+            data = codec.encode(fr)
+            out = fr.sensor.project(codec.decode(data)).ranges
+            a = fr.sensor.project(fr.points).ranges
+            both = (a > 0) & (out > 0)
+            errs.append(np.abs(a[both] - out[both]))
+            rm, cov, fa = scores(fr, out)
+            sizes.append(len(data))
+            rms.append(rm)
+            covs.append(cov)
+            fas.append(fa)
+        e = np.concatenate(errs) * 100
+        r = np.array(rms) * 100
+        print(f"| {m} | {np.mean(sizes):.0f} | {r.mean():.1f} ± {r.std():.1f} | "
+              f"{e.mean():.1f} ± {e.std():.1f} | "
+              f"{np.mean(covs):.3f} | {np.mean(fas):.3f} |")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("command", choices=["steps", "sweep", "timing", "bodies"])
+    ap.add_argument("command", choices=["steps", "sweep", "timing", "bodies", "table"])
     ap.add_argument("folder")
     ap.add_argument("--frames", type=int, default=10)
     ap.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
@@ -184,11 +212,15 @@ def main() -> None:
     ap.add_argument("--v-floor", type=float, nargs="+", default=[0.0, 0.01, 0.03, 0.1])
     ap.add_argument("--min-coverage", type=float, default=0.95)
     ap.add_argument("--m", type=int, nargs="+", default=[500])
+    ap.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
+                    help="a vsgp codec parameter for every run (repeatable)")
     args = ap.parse_args()
+    args.param = dict(kv.split("=", 1) for kv in args.param)
     if args.threads:
         torch.set_num_threads(args.threads)
     frames = load_frames(args.folder, args.frames)
-    commands = {"steps": cmd_steps, "sweep": cmd_sweep, "timing": cmd_timing, "bodies": cmd_bodies}
+    commands = {"steps": cmd_steps, "sweep": cmd_sweep, "timing": cmd_timing, "bodies": cmd_bodies,
+                "table": cmd_table}
     commands[args.command](frames, args)
 
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import torch
 
 __all__ = [
-    "Hyper", "rq_cross", "rq_tensor", "rq_grid", "wrap_azimuth", "cholesky", "collapsed_bound",
+    "Hyper", "rq_cross", "rq_tensor", "rq_grid", "chord", "cholesky", "collapsed_bound",
     "posterior_inducing_mean", "Predictor",
 ]
 
@@ -47,12 +47,17 @@ class Hyper:
         return all(math.isfinite(v) and v > 0 for v in self.as_list())
 
 
-def wrap_azimuth(d: torch.Tensor) -> torch.Tensor:
-    """Azimuth differences wrapped into ``[-pi, pi)``: a scan is a full turn, so the columns on
-    either side of the ``+-pi`` seam are neighbours (without this the seam's cells had 14 cm
-    error on a plain cylinder: no inducing point beyond it). For lengthscales far below a
-    turn the kernel stays positive definite up to the jitter."""
-    return torch.remainder(d + math.pi, 2 * math.pi) - math.pi
+def chord(d: torch.Tensor) -> torch.Tensor:
+    """Azimuth difference -> chord length ``2 sin(d / 2)`` on the unit circle.
+
+    A scan is a full turn, so the columns on either side of the ``+-pi`` seam are neighbours:
+    with plain differences the seam's cells had 14 cm error on a plain cylinder (no inducing
+    point beyond it). Merely wrapping the difference into ``[-pi, pi)`` breaks positive
+    definiteness once the lengthscale is a sizeable part of a turn (M=200 failed to factor).
+    The chord is the Euclidean distance of the embedding ``(cos az, sin az)``, so the kernel is
+    GPyTorch's RQ-ARD kernel on ``(cos az, sin az, el)`` -- positive definite for any
+    lengthscale -- and equals the plain difference to O(d^3) for nearby cells."""
+    return 2 * torch.sin(d / 2)
 
 
 def _rq_from_sqdist(d2: torch.Tensor, alpha: float | torch.Tensor,
@@ -71,11 +76,12 @@ def rq_cross(x1: torch.Tensor, x2: torch.Tensor, h: Hyper) -> torch.Tensor:
 
 def rq_tensor(x1: torch.Tensor, x2: torch.Tensor, ls: torch.Tensor, alpha: float | torch.Tensor,
               scale: float | torch.Tensor) -> torch.Tensor:
-    """Same kernel with tensor hyper-parameters (differentiable), the formula of GPyTorch's
-    ``ScaleKernel(RQKernel(ard_num_dims=2))`` but with exact differences instead of GPyTorch's
+    """Same kernel with tensor hyper-parameters (differentiable): GPyTorch's
+    ``ScaleKernel(RQKernel(ard_num_dims=3))`` on ``(cos az, sin az, el)`` with lengthscales
+    ``(ls_az, ls_az, ls_el)`` (see :func:`chord`), but from exact differences instead of GPyTorch's
     ``|a|^2 + |b|^2 - 2ab`` expansion, so that ``K_mm`` is accurate enough to factor in float64."""
     ls = ls.reshape(-1).to(x1.dtype)
-    da = wrap_azimuth(x1[:, None, 0] - x2[None, :, 0]) / ls[0]
+    da = chord(x1[:, None, 0] - x2[None, :, 0]) / ls[0]
     de = (x1[:, None, 1] - x2[None, :, 1]) / ls[1]
     d2 = da.square() + de.square() if da.requires_grad else da.square_().add_(de.square_())
     if isinstance(alpha, torch.Tensor):
@@ -90,7 +96,7 @@ def rq_grid(az: torch.Tensor, el: torch.Tensor, z: torch.Tensor, h: Hyper) -> to
 
     The squared distance of a grid is separable, so only the transcendental part costs R*C*M.
     """
-    da = (wrap_azimuth(az[:, None] - z[None, :, 0]) / h.ls_az).square_()  # (C, M)
+    da = (chord(az[:, None] - z[None, :, 0]) / h.ls_az).square_()  # (C, M)
     de = ((el[:, None] - z[None, :, 1]) / h.ls_el).square_()  # (R, M)
     d2 = de[:, None, :] + da[None, :, :]
     return _rq_from_sqdist(d2, h.alpha, h.outputscale)

@@ -1,0 +1,76 @@
+"""VSGP encode and decode time per 57,600-ray VLP-16 tunnel scan at M = 500.
+
+Targets (issue 4): encode <= 0.5 s, decode <= 0.25 s on this 2-core CPU. Each benchmark also
+stores its time over a reference timed in the same process (one 57,600 x 500 RQ kernel
+evaluation, the decoder's dominant workload) in ``extra_info["x_reference"]``, and the median
+per-stage times of the codec in ``extra_info["stages_ms"]``, because the machine is shared.
+
+    /work/venv/bin/pytest tests/benchmarks/test_bench_vsgp.py -m benchmark --benchmark-enable
+"""
+
+from __future__ import annotations
+
+from functools import cache
+
+import numpy as np
+import pytest
+from lwbench_plugins.vsgp import VSGPCodec
+from lwbench_plugins.vsgp.experiments import reference_seconds
+from lwbench_plugins.vsgp.synthetic import tunnel_frame
+
+from lwbench import Frame
+
+
+@cache
+def frames() -> list[Frame]:
+    return [tunnel_frame(seed=s) for s in range(20)]
+
+
+def _stages(codec: VSGPCodec, calls: list[dict[str, float]]) -> dict[str, float]:
+    keys = [k for k in calls[0] if k != "steps_run"]
+    return {k: round(1000 * float(np.median([c[k] for c in calls])), 2) for k in keys}
+
+
+@pytest.mark.benchmark
+@pytest.mark.parametrize("body", ["float32", "q16z"])
+def test_bench_vsgp_encode(benchmark, body):
+    codec = VSGPCodec(body=body, device="cpu")
+    codec.encode(frames()[0])  # warm-up
+    state = {"i": 0}
+    calls: list[dict[str, float]] = []
+
+    def run() -> bytes:
+        frame = frames()[state["i"] % len(frames())]
+        state["i"] += 1
+        out = codec.encode(frame)
+        calls.append(dict(codec.last_timings))
+        return out
+
+    benchmark.pedantic(run, rounds=20, iterations=1)
+    ref = reference_seconds()
+    benchmark.extra_info["x_reference"] = benchmark.stats.stats.median / ref
+    benchmark.extra_info["reference_ms"] = 1000 * ref
+    benchmark.extra_info["stages_ms"] = _stages(codec, calls)
+
+
+@pytest.mark.benchmark
+@pytest.mark.parametrize("upsample", [1, 2])
+def test_bench_vsgp_decode(benchmark, upsample):
+    payloads = [VSGPCodec(device="cpu").encode(f) for f in frames()]
+    codec = VSGPCodec(upsample=upsample, device="cpu")
+    codec.decode(payloads[0])  # warm-up
+    state = {"i": 0}
+    calls: list[dict[str, float]] = []
+
+    def run() -> np.ndarray:
+        data = payloads[state["i"] % len(payloads)]
+        state["i"] += 1
+        out = codec.decode(data)
+        calls.append(dict(codec.last_timings))
+        return out
+
+    benchmark.pedantic(run, rounds=20, iterations=1)
+    ref = reference_seconds()
+    benchmark.extra_info["x_reference"] = benchmark.stats.stats.median / ref
+    benchmark.extra_info["reference_ms"] = 1000 * ref
+    benchmark.extra_info["stages_ms"] = _stages(codec, calls)
