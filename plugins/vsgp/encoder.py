@@ -9,9 +9,10 @@ The steps, each timed by the codec:
    distributed", share ``1 - adapt``) with the occupancy's variation (share ``adapt``), so
    range edges get more points than flat walls (measured: 14.1 -> 11.3 cm RMSD on the
    simulated tunnel at M=500). Each input is the centroid of its segment's cells.
-3. *refine* -- hyper-parameters start from the sensor's resolution times the rays each
-   inducing input summarises, then a few Adam steps on Titsias' collapsed bound over a seeded
-   subsample, stopping as soon as the bound stops improving.
+3. *refine* -- hyper-parameters start from the sensor's geometry (:func:`initial_hyper`);
+   optionally (``steps > 0``) Adam steps on Titsias' collapsed bound over a seeded subsample,
+   stopping as soon as the bound stops improving. Off by default: on the simulated tunnel the
+   bound kept rising while the reconstruction got worse, at ~1 s per step (docs/vsgp.md).
 4. *fit* -- the closed-form optimal q(u) on a column-strided subset of the occupied cells; its
    mean at the inducing inputs is what the payload carries.
 """
