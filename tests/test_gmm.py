@@ -225,6 +225,11 @@ def test_roundtrip_is_deterministic_and_close(tunnel):
     assert rmsd < 0.3 and coverage > 0.5 and false < 0.2
 
 
+def test_samples_parameter_sets_the_decoded_count(tunnel):
+    data = GMMCodec(n_components=5, max_iter=5, samples=2.0).encode(frame_of(tunnel))
+    assert GMMCodec().decode(data).shape == (2 * len(tunnel), 3)
+
+
 def test_reproject_puts_points_on_cell_centres(tunnel):
     data = GMMCodec(n_components=20, reproject=True).encode(frame_of(tunnel))
     q = GMMCodec().decode(data)
