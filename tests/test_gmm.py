@@ -97,6 +97,8 @@ def test_not_fitted_and_bad_params():
         TorchGaussianMixture(3, covariance_type="diag").fit(np.random.rand(50, 3))
     with pytest.raises(ValueError, match="NaN"):
         TorchGaussianMixture(2).fit(np.full((10, 3), np.nan))
+    with pytest.raises(ValueError, match=r"\(N, 3\)"):
+        TorchGaussianMixture(2).fit(np.random.rand(10, 2))
 
 
 def test_score_samples_matches_sklearn_on_the_same_parameters(tunnel):

@@ -116,8 +116,8 @@ class TorchGaussianMixture:
     def _as_tensor(self, X: Any) -> torch.Tensor:
         """Points as a float64 ``(N, 3)`` tensor on the fit device, finite, 2-D."""
         t = torch.as_tensor(np.asarray(X) if not isinstance(X, torch.Tensor) else X)
-        if t.ndim != 2:
-            raise ValueError(f"expected a 2-D array of points, got shape {tuple(t.shape)}")
+        if t.ndim != 2 or t.shape[1] != 3:
+            raise ValueError(f"expected (N, 3) points (the 3x3 algebra is specialised), got shape {tuple(t.shape)}")
         if hasattr(self, "n_features_in_") and t.shape[1] != self.n_features_in_:
             raise ValueError(f"X has {t.shape[1]} features, the mixture was fitted with {self.n_features_in_}")
         t = t.to(device=torch.device(self.device), dtype=torch.float64)
