@@ -63,7 +63,39 @@ def _frame(scan: ScanArrays, sensor: SensorModel, index: int, stamp: float, pose
     )
 
 
-class KittiDataset(Dataset):
+class _ScanFiles(Dataset):
+    """What both loaders share: a sorted list of scan files, optional poses, one sensor model.
+
+    Subclasses set ``files``, ``folder`` and ``poses`` in ``__init__`` and name their reader."""
+
+    files: list[Path]
+    folder: Path
+    poses: np.ndarray | None
+
+    @staticmethod
+    def read(path: Path) -> ScanArrays:
+        return read_point_file(path)
+
+    def __len__(self) -> int:
+        return len(self.files)
+
+    @property
+    def has_poses(self) -> bool:
+        return self.poses is not None
+
+    @cached_property
+    def sensor(self) -> SensorModel:
+        return _sensor_for(self.folder, self.config["sensor"], self.read(self.files[0]), self.config["rate_hz"])
+
+    def _stamp(self, index: int) -> float:
+        return index / self.sensor.rate_hz
+
+    def frame(self, index: int) -> Frame:
+        pose = self.poses[index] if self.poses is not None else None
+        return _frame(self.read(self.files[index]), self.sensor, index, self._stamp(index), pose)
+
+
+class KittiDataset(_ScanFiles):
     """KITTI odometry layout: ``velodyne/*.bin`` (or ``*.bin`` in the folder itself),
     optional ``poses.txt`` (camera frame) + ``calib.txt`` (``Tr``) and ``times.txt``.
 
@@ -83,7 +115,7 @@ class KittiDataset(Dataset):
         super().__init__(**params)
         if not self.config["path"]:
             raise DataFormatError("kitti: the path parameter is required")
-        self.root = Path(self.config["path"])
+        self.root = self.folder = Path(self.config["path"])
         scan_dir = self.root / "velodyne" if (self.root / "velodyne").is_dir() else self.root
         self.files = sorted(scan_dir.glob("*.bin"))
         if not self.files:
@@ -109,25 +141,15 @@ class KittiDataset(Dataset):
     def sniff(cls, path: Path) -> bool:
         return path.is_dir() and (any(path.glob("*.bin")) or any((path / "velodyne").glob("*.bin")))
 
-    def __len__(self) -> int:
-        return len(self.files)
+    @staticmethod
+    def read(path: Path) -> ScanArrays:
+        return read_kitti_bin(path)
 
-    @property
-    def has_poses(self) -> bool:
-        return self.poses is not None
-
-    @cached_property
-    def sensor(self) -> SensorModel:
-        return _sensor_for(self.root, self.config["sensor"], read_kitti_bin(self.files[0]), self.config["rate_hz"])
-
-    def frame(self, index: int) -> Frame:
-        scan = read_kitti_bin(self.files[index])
-        stamp = float(self.times[index]) if self.times is not None else index / self.sensor.rate_hz
-        pose = self.poses[index] if self.poses is not None else None
-        return _frame(scan, self.sensor, index, stamp, pose)
+    def _stamp(self, index: int) -> float:
+        return float(self.times[index]) if self.times is not None else super()._stamp(index)
 
 
-class PointFileDataset(Dataset):
+class PointFileDataset(_ScanFiles):
     """A folder of PCD/PLY/BIN scans (sorted by name), or one scan file, with an optional pose
     file (``poses_file``; default: the one ``*pose*.txt`` in the folder, if exactly one).
     KITTI, TUM and stamped-KITTI pose files are recognised; keyed files are matched to scans
@@ -183,22 +205,6 @@ class PointFileDataset(Dataset):
         if path.is_file():
             return path.suffix.lower() in POINT_SUFFIXES
         return path.is_dir() and any(p.suffix.lower() in (".pcd", ".ply") for p in path.iterdir())
-
-    def __len__(self) -> int:
-        return len(self.files)
-
-    @property
-    def has_poses(self) -> bool:
-        return self.poses is not None
-
-    @cached_property
-    def sensor(self) -> SensorModel:
-        return _sensor_for(self.folder, self.config["sensor"], read_point_file(self.files[0]), self.config["rate_hz"])
-
-    def frame(self, index: int) -> Frame:
-        scan = read_point_file(self.files[index])
-        pose = self.poses[index] if self.poses is not None else None
-        return _frame(scan, self.sensor, index, index / self.sensor.rate_hz, pose)
 
 
 @hookimpl

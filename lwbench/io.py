@@ -209,23 +209,9 @@ def write_kitti_sequence(frames: list[Frame], out_dir: str | Path) -> Path:
         _write_identity_calib(out / "calib.txt")
     np.savetxt(out / "times.txt", np.array(times), fmt="%.6f")
     if frames:
-        (out / SENSOR_FILE).write_text(json.dumps(_full_sensor_dict(frames[0].sensor), indent=1))
+        (out / SENSOR_FILE).write_text(json.dumps(frames[0].sensor.to_dict(full=True), indent=1))
     return out
 
 
 def _write_identity_calib(path: Path) -> None:
     path.write_text("Tr: " + " ".join(f"{v:.1f}" for v in np.eye(4)[:3].reshape(-1)) + "\n")
-
-
-def _full_sensor_dict(sensor: SensorModel) -> dict:
-    d = sensor.to_dict()
-    if "preset" in d:  # files on disk outlive presets: write the whole table
-        d = {
-            "name": sensor.name,
-            "elevations_deg": list(sensor.elevations_deg),
-            "azimuth_step_deg": sensor.azimuth_step_deg,
-            "min_range": sensor.min_range,
-            "max_range": sensor.max_range,
-            "rate_hz": sensor.rate_hz,
-        }
-    return d

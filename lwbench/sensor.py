@@ -157,10 +157,11 @@ class SensorModel:
         return (self.ray_directions()[valid] * ranges[valid][:, None]).astype(np.float32)
 
     # -- serialization (payloads carry the sensor so decode needs nothing else) -------------
-    def to_dict(self) -> dict:
-        """Compact description: a preset name when it is one, else the full table."""
+    def to_dict(self, *, full: bool = False) -> dict:
+        """Compact description: a preset name when it is one (payloads), else -- or with
+        ``full=True``, for files that must outlive a change of presets -- the whole table."""
         preset = SENSOR_PRESETS.get(self.name)
-        if preset is not None and preset == self:
+        if not full and preset is not None and preset == self:
             return {"preset": self.name}
         return {
             "name": self.name,

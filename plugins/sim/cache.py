@@ -66,7 +66,7 @@ class ScanCache:
                 _atomic_write(root / "calib.txt", lambda f: f.write(calib.encode()))
                 stamps = "".join(f"{t:.6f}\n" for t in times)
                 _atomic_write(root / "times.txt", lambda f: f.write(stamps.encode()))
-                desc = json.dumps(_sensor_dict(sensor), indent=1)
+                desc = json.dumps(sensor.to_dict(full=True), indent=1)
                 _atomic_write(root / SENSOR_FILE, lambda f: f.write(desc.encode()))
         except OSError as e:
             warnings.warn(f"sim: cannot use the scan cache at {root} ({e}); not caching", stacklevel=3)
@@ -110,15 +110,3 @@ class ScanCache:
             _atomic_write(bin_path, lambda f: xyzi.tofile(f))
         except OSError as e:
             warnings.warn(f"sim: could not cache scan {index} in {self.root} ({e})", stacklevel=2)
-
-
-def _sensor_dict(sensor: SensorModel) -> dict:
-    """The full beam table (a preset name could change meaning in a later lwbench)."""
-    return {
-        "name": sensor.name,
-        "elevations_deg": list(sensor.elevations_deg),
-        "azimuth_step_deg": sensor.azimuth_step_deg,
-        "min_range": sensor.min_range,
-        "max_range": sensor.max_range,
-        "rate_hz": sensor.rate_hz,
-    }
