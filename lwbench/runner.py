@@ -363,8 +363,11 @@ class Runner:
                     if failed:
                         raise LwbenchError(f"{failed} of {len(self.frame_indices)} frames failed to encode/decode")
                     seq = SequenceEvaluation(self.dataset, self.frame_indices, decoded, cfg.name, cfg.params, self.seed)
-                    values = metric_cls().compute(seq)
-                    row = self._sequence_row(cfg, name, "ok", values, {"metric_params": metric_cls.params})
+                    watch = Stopwatch()
+                    with watch.time("metric_ms"):
+                        values = metric_cls().compute(seq)
+                    extra = {"metric_params": metric_cls.params, **watch.ms}
+                    row = self._sequence_row(cfg, name, "ok", values, extra)
                 except Exception as exc:  # noqa: BLE001
                     row = self._sequence_row(
                         cfg,
