@@ -92,18 +92,20 @@ def test_fit_k200_vs_sklearn_same_start(benchmark, one_thread):
     assert ll_ours >= ll_ref - 1e-3
 
 
-def test_fit_k200_vs_sklearn_own_init(benchmark, one_thread):
-    """Each with its own initialisation and seed 0 (scikit-learn's time includes its k-means):
-    recorded for the closing note; only the speed is asserted (see the same-start test)."""
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_fit_k200_vs_sklearn_own_init(benchmark, one_thread, seed):
+    """Each with its own initialisation and the same seed (scikit-learn's time includes its
+    k-means): recorded for the closing note; only the speed is asserted, because which of the
+    two lands in the better local optimum changes from seed to seed (see docs/gmm.md)."""
     x = tunnel_scan()
     k = 200
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         t0 = time.perf_counter()
-        ref = GaussianMixture(k, max_iter=100, random_state=0).fit(x.astype(np.float64))
+        ref = GaussianMixture(k, max_iter=100, random_state=seed).fit(x.astype(np.float64))
         sk_s = time.perf_counter() - t0
         ours = benchmark.pedantic(
-            lambda: TorchGaussianMixture(k, max_iter=100, random_state=0).fit(x), rounds=1, iterations=1
+            lambda: TorchGaussianMixture(k, max_iter=100, random_state=seed).fit(x), rounds=1, iterations=1
         )
     ours_s = benchmark.stats.stats.min
     benchmark.extra_info.update(
