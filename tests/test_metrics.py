@@ -6,9 +6,9 @@ import math
 
 import numpy as np
 import pytest
+from lwbench_metrics import GeometryMetric, RangeImageMetric, RuntimeMetric, SizeMetric
 
 from lwbench import CodecKind, Evaluation, Frame
-from lwbench_metrics import GeometryMetric, RangeImageMetric, RuntimeMetric, SizeMetric
 
 
 def _ev(frame: Frame, decoded: np.ndarray, payload: bytes = b"x" * 100, **kw) -> Evaluation:

@@ -12,13 +12,13 @@ import time
 
 import numpy as np
 import pytest
+from lwbench_metrics import GeometryMetric, RangeImageMetric, SizeMetric
 
 from lwbench import CodecKind, Evaluation
 from lwbench.datasets import KittiDataset
 from lwbench.registry import get_registry
 from lwbench.runner import DatasetSpec, Runner, expand_codec_configs
 from lwbench.store import ResultStore
-from lwbench_metrics import GeometryMetric, RangeImageMetric, SizeMetric
 
 pytestmark = pytest.mark.benchmark
 
