@@ -15,6 +15,7 @@ from lwbench.codec import (
 from lwbench.dataset import Dataset
 from lwbench.device import DEVICE_PARAM, resolve_device
 from lwbench.hookspecs import hookimpl
+from lwbench.io import SENSOR_FILE, read_kitti_bin, read_point_file, write_kitti_sequence
 from lwbench.metric import Evaluation, FrameMetric, SequenceEvaluation, SequenceMetric
 from lwbench.payload import Payload, PayloadError
 from lwbench.points import POINT_ENCODINGS, pack_points, unpack_points
@@ -41,6 +42,7 @@ __all__ = [
     "PayloadError",
     "RangeImage",
     "RepresentationCodec",
+    "SENSOR_FILE",
     "SENSOR_PRESETS",
     "SelectionCodec",
     "SelectionError",
@@ -50,7 +52,10 @@ __all__ = [
     "get_sensor",
     "hookimpl",
     "pack_points",
+    "read_kitti_bin",
+    "read_point_file",
     "resolve_device",
     "unpack_points",
+    "write_kitti_sequence",
     "__version__",
 ]

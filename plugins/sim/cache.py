@@ -22,8 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lwbench import SensorModel
-from lwbench.io import SENSOR_FILE
+from lwbench import SENSOR_FILE, SensorModel
 
 from .raycast import Scan
 

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lwbench.io import read_kitti_bin
+from lwbench import read_kitti_bin
 
 from .dataset import SimDataset
 
