@@ -24,8 +24,7 @@ from scipy.spatial import cKDTree
 __all__ = [
     "Neighbourhood",
     "hybrid_neighbourhood",
-    "gather_offsets",
-    "outer_sums",
+    "gathered_moments",
     "outer6",
     "scatter",
     "trace_sym6",
@@ -89,27 +88,50 @@ def hybrid_neighbourhood(points: np.ndarray, max_nn: int, radius: float) -> Neig
     return Neighbourhood(idx=idx, valid=valid, dist=dist)
 
 
-def gather_offsets(points: np.ndarray, nb: Neighbourhood) -> np.ndarray:
-    """Neighbour offsets ``p_j - p_i`` as a ``(3, N, K)`` float32 array (0 in invalid slots).
+#: Rows per block in :func:`gathered_moments`: a ``(3, block, K)`` float32 block stays in cache.
+BLOCK = 2048
 
-    Coordinate-major layout: each of the three ``(N, K)`` planes is contiguous, which makes the
-    gather and the row-wise products below ~4x faster than an ``(N, K, 3)`` layout. Offsets
-    are taken from the query point so float32 keeps its precision far from the origin.
+_PAIRS = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
+
+
+def gathered_moments(
+    values: np.ndarray, idx: np.ndarray, valid: np.ndarray | None = None, centred: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
+    """Row sums ``sum_j v_j`` ``(3, N)`` and ``sum_j v_j v_j^T`` (sym6 ``(6, N)``) of gathered vectors.
+
+    ``values`` is ``(3, M)``, coordinate-major; row ``i`` gathers ``values[:, idx[i]]``. With
+    ``centred`` the vectors are offsets ``v_j - v_i`` from the row's own column (so float32
+    keeps its precision far from the origin); with ``valid`` the slots where it is False read
+    column ``M - 1`` instead, which the caller keeps at zero. Component order of the sym6
+    output (used by every ``*_sym6`` function): xx, xy, xz, yy, yz, zz.
+
+    Why blocks of :data:`BLOCK` rows instead of one ``(3, N, K)`` array: the gathered block
+    stays in cache for the six products, and no 24 MB temporary has to be page-faulted in on
+    every call -- 2x faster on a 124,668-point KITTI frame (``max_nn=16``: 23 vs 50 ms for
+    :func:`scatter`). Per plane, ``np.take`` into a preallocated block is ~1.6x faster than
+    ``values[:, idx]``; row sums are a matrix-vector product (10x faster than ``sum(axis=2)``
+    over K = 16); products are summed in float32 (2x faster than casting every operand; K is
+    small and offsets are local, so the sums keep ~7 significant digits).
     """
-    pt = np.ascontiguousarray(np.asarray(points, dtype=np.float32).T)
-    return pt[:, nb.idx] - pt[:, :, None]
-
-
-def outer_sums(v: np.ndarray) -> np.ndarray:
-    """``sum_k v v^T`` per row of a ``(3, N, K)`` array, as sym6 components ``(6, N)`` float64.
-
-    Component order (used by every ``*_sym6`` function): xx, xy, xz, yy, yz, zz.
-    """
-    x, y, z = v
-    rows = [(x, x), (x, y), (x, z), (y, y), (y, z), (z, z)]
-    # Summed in the input's precision (float32: 2x faster than casting every operand); K is
-    # small and offsets are local, so the sums keep ~7 significant digits.
-    return np.stack([np.einsum("nk,nk->n", a, b) for a, b in rows]).astype(np.float64)
+    vals = np.ascontiguousarray(values, dtype=np.float32)
+    n, k = idx.shape
+    sums = np.empty((3, n), dtype=np.float32)
+    outer = np.empty((6, n), dtype=np.float32)
+    buf = np.empty((3, min(BLOCK, n), k), dtype=np.float32)
+    ones = np.ones(k, dtype=np.float32)
+    fill = vals.shape[1] - 1
+    for a in range(0, n, BLOCK):  # blocks of rows, each fully vectorized
+        b = min(a + BLOCK, n)
+        v = buf[:, : b - a]
+        rows = idx[a:b] if valid is None else np.where(valid[a:b], idx[a:b], fill)
+        for c in range(3):
+            np.take(vals[c], rows, out=v[c])
+            if centred:
+                v[c] -= vals[c, a:b, None]
+        np.matmul(v, ones, out=sums[:, a:b])
+        for j, (p, q) in enumerate(_PAIRS):
+            np.einsum("nk,nk->n", v[p], v[q], out=outer[j, a:b])
+    return sums.astype(np.float64), outer.astype(np.float64)
 
 
 def scatter(points: np.ndarray, nb: Neighbourhood) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -117,11 +139,12 @@ def scatter(points: np.ndarray, nb: Neighbourhood) -> tuple[np.ndarray, np.ndarr
 
     Returns ``(count (N,), mean offset (3, N), S (6, N))`` where ``S`` is the mean-centred
     scatter matrix ``sum_j (p_j - mean)(p_j - mean)^T`` in sym6 components (float64).
+    Invalid slots hold the point itself, so their offsets are 0 and add nothing.
     """
-    d = gather_offsets(points, nb)
-    count = nb.valid.sum(axis=1).astype(np.float64)
-    mean = d.sum(axis=2).astype(np.float64) / np.maximum(count, 1.0)
-    s = outer_sums(d)
+    pts = np.asarray(points, dtype=np.float32).T
+    count = np.count_nonzero(nb.valid, axis=1).astype(np.float64)
+    sums, s = gathered_moments(pts, nb.idx, centred=True)
+    mean = sums / np.maximum(count, 1.0)
     s -= count * outer6(mean)
     return count, mean, s
 

@@ -28,9 +28,9 @@ from ._geometry import (
     eigvals_sym6,
     eigvec_sym6,
     first_beaten,
+    gathered_moments,
     hybrid_neighbourhood,
     nms_levels,
-    outer_sums,
     radius_nms,
     scatter,
     trace_sym6,
@@ -72,13 +72,16 @@ def _normal_covariance_response(
 ) -> tuple[np.ndarray, np.ndarray]:
     """PCL's responses from the mean ``n n^T`` of the valid normals around each point."""
     # Mean of n n^T over the neighbours whose normal is valid (calculateNormalCovar): invalid
-    # slots and invalid normals point at an appended zero column, so they add nothing.
+    # slots read an appended zero column and invalid normals are zeroed, so they add nothing.
     n = len(normal[0])
     nrm = np.zeros((3, n + 1), dtype=np.float32)
     nrm[:, :n] = np.where(ok, normal, 0.0)
-    sel = np.where(nb.valid & ok[nb.idx], nb.idx, n)
-    cnt = (sel < n).sum(axis=1)
-    c = outer_sums(nrm[:, sel]) / np.maximum(cnt, 1)
+    _, c = gathered_moments(nrm, nb.idx, valid=nb.valid)
+    # Every valid normal is a unit vector and adds exactly 1 (to float32 rounding) to the
+    # trace of sum n n^T, an invalid one 0: the trace rounds to their count, without the
+    # (N, K) gather of the validity flags.
+    cnt = np.rint(trace_sym6(c))
+    c /= np.maximum(cnt, 1.0)
     trace = trace_sym6(c)
     det = det_sym6(c)
     defined = trace != 0
