@@ -16,6 +16,7 @@ decomposition. Doing these per point in Python would take minutes, so:
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -172,7 +173,17 @@ def eigvals_sym6(m: np.ndarray) -> np.ndarray:
     Closed form (Smith 1961, as Open3D's ``FastEigen3x3``): shift by the mean eigenvalue,
     scale, and read the three roots off the cosine of one angle. Multiples of the identity
     return three equal values.
+
+    Elementwise work in column blocks of :data:`COLUMNS` (see :func:`_column_blocks`).
     """
+    n = m.shape[1]
+    out = np.empty((3, n), dtype=np.float64)
+    for a, b in _column_blocks(n):
+        out[:, a:b] = _eigvals_block(m[:, a:b])
+    return out
+
+
+def _eigvals_block(m: np.ndarray) -> np.ndarray:
     a, d, e, b, f, c = m
     q = (a + b + c) / 3.0
     aq, bq, cq = a - q, b - q, c - q
@@ -184,7 +195,10 @@ def eigvals_sym6(m: np.ndarray) -> np.ndarray:
     l_max = q + 2.0 * p * np.cos(phi)
     l_min = q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0)
     l_mid = 3.0 * q - l_max - l_min
-    return np.sort(np.stack([l_min, l_mid, l_max]), axis=0)  # rounding can swap by ~1 ulp
+    # Rounding can swap them by ~1 ulp: a 3-element sorting network (min/max, as np.sort).
+    lo, hi = np.minimum(l_min, l_mid), np.maximum(l_min, l_mid)
+    mid = np.minimum(hi, l_max)
+    return np.stack([np.minimum(lo, mid), np.maximum(lo, mid), np.maximum(hi, l_max)])
 
 
 def eigvec_sym6(m: np.ndarray, lam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -192,8 +206,18 @@ def eigvec_sym6(m: np.ndarray, lam: np.ndarray) -> tuple[np.ndarray, np.ndarray]
 
     The eigenvector spans the null space of ``M - lam I``: the largest of the three cross
     products of its rows. Where all of them vanish (the eigenvalue is not simple, e.g. fewer
-    than 3 distinct neighbours) the vector is undefined and ``valid`` is False.
+    than 3 distinct neighbours) the vector is undefined and ``valid`` is False. Computed in
+    column blocks of :data:`COLUMNS` (see :func:`_column_blocks`).
     """
+    n = m.shape[1]
+    v = np.empty((3, n), dtype=np.float64)
+    valid = np.empty(n, dtype=bool)
+    for a, b in _column_blocks(n):
+        v[:, a:b], valid[a:b] = _eigvec_block(m[:, a:b], lam[a:b])
+    return v, valid
+
+
+def _eigvec_block(m: np.ndarray, lam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     a, d, e, b, f, c = m
     a, b, c = a - lam, b - lam, c - lam
     r0, r1, r2 = np.stack([a, d, e]), np.stack([d, b, f]), np.stack([e, f, c])
@@ -209,6 +233,20 @@ def eigvec_sym6(m: np.ndarray, lam: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     return v, valid
 
 
+#: Columns per block of the elementwise eigen solvers.
+COLUMNS = 16384
+
+
+def _column_blocks(n: int) -> Iterator[tuple[int, int]]:
+    """``(start, stop)`` of column blocks for elementwise work over ``(., N)`` arrays.
+
+    The closed-form solvers make some 40 temporaries; over 16,384 columns they stay in cache
+    and freed buffers are reused, where full-length ones each cost a fresh 1 MB allocation:
+    eigenvalues of a 124,668-point KITTI frame take 6-8 ms instead of 12-15 ms, same values.
+    """
+    return ((a, min(a + COLUMNS, n)) for a in range(0, n, COLUMNS))
+
+
 def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return np.stack([u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]])
 
@@ -222,13 +260,23 @@ def first_beaten(response: np.ndarray, nb: Neighbourhood) -> np.ndarray:
     perfectly regular synthetic surface, duplicated points) yields one keypoint per
     neighbourhood rather than all of its points. Real scans have no exact ties away from
     duplicates, so their keypoints are the same.
+
+    Computed in blocks of :data:`BLOCK` rows, whose ``(block, K)`` temporaries stay in cache
+    (11 -> 8 ms on a 124,668-point KITTI frame, same result).
     """
-    r = response[:, None]
-    nbr = response[nb.idx]
-    beaten = (nbr > r) | ((nbr == r) & (nb.idx < np.arange(len(response))[:, None]))
-    beaten &= nb.valid
-    k = nb.idx.shape[1]
-    return np.where(beaten.any(axis=1), beaten.argmax(axis=1), k)
+    n, k = nb.idx.shape
+    out = np.empty(n, dtype=np.int64)
+    rows = np.arange(BLOCK)
+    for a in range(0, n, BLOCK):  # blocks of rows, each fully vectorized
+        b = min(a + BLOCK, n)
+        idx = nb.idx[a:b]
+        r = response[a:b, None]
+        nbr = np.take(response, idx)
+        beaten = (nbr > r) | ((nbr == r) & (idx < np.arange(a, b)[:, None]))
+        beaten &= nb.valid[a:b]
+        first = beaten.argmax(axis=1)
+        out[a:b] = np.where(beaten[rows[: b - a], first], first, k)
+    return out
 
 
 def local_max(response: np.ndarray, nb: Neighbourhood) -> np.ndarray:
