@@ -309,7 +309,7 @@ def radius_nms(points: np.ndarray, response: np.ndarray, candidates: np.ndarray,
     cand = np.flatnonzero(candidates)
     if len(cand) < 2:
         return candidates
-    tree = cKDTree(np.asarray(points, dtype=np.float64)[cand], leafsize=8, balanced_tree=False, compact_nodes=False)
+    tree = cKDTree(np.asarray(points)[cand].astype(np.float64), leafsize=8, balanced_tree=False, compact_nodes=False)
     pairs = tree.query_pairs(radius, output_type="ndarray")
     r = response[cand]
     a, b = pairs[:, 0], pairs[:, 1]  # query_pairs gives a < b, so b has the larger index
