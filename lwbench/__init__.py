@@ -13,6 +13,7 @@ from lwbench.codec import (
     SelectionError,
 )
 from lwbench.dataset import Dataset
+from lwbench.deps import import_open3d
 from lwbench.device import DEVICE_PARAM, resolve_device
 from lwbench.hookspecs import hookimpl
 from lwbench.io import SENSOR_FILE, read_kitti_bin, read_point_file, write_kitti_sequence
@@ -51,6 +52,7 @@ __all__ = [
     "SequenceMetric",
     "get_sensor",
     "hookimpl",
+    "import_open3d",
     "pack_points",
     "read_kitti_bin",
     "read_point_file",

@@ -62,7 +62,7 @@ def _registry() -> Registry:
 
 
 @app.callback()
-def main(
+def _global_options(
     strict: Annotated[bool, typer.Option("--strict", help="Fail if any plugin fails to load (for CI).")] = False,
 ) -> None:
     _state["strict"] = strict
@@ -364,5 +364,15 @@ def simulate(
     console.print(f"wrote {len(scans)} scans of {scene!r} to {out} (run: lwbench run --dataset {out})")
 
 
+def main() -> None:
+    """The ``lwbench`` executable: any lwbench error that escapes a command (a missing library,
+    a bad input found late) is one line on stderr and exit status 2, never a traceback."""
+    try:
+        app()
+    except LwbenchError as exc:
+        err_console.print(f"[bold red]error:[/] {exc}")
+        sys.exit(2)
+
+
 if __name__ == "__main__":  # pragma: no cover
-    app()
+    main()

@@ -17,9 +17,10 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from lwbench.payload import Payload, PayloadError
+from lwbench.errors import ParameterError, PayloadError, SelectionError
+from lwbench.payload import Payload
 from lwbench.points import POINT_ENCODINGS, pack_points, unpack_points
-from lwbench.types import Frame, Param, ParameterError, resolve_params
+from lwbench.types import Frame, Param, resolve_params
 
 __all__ = [
     "Codec",
@@ -34,10 +35,6 @@ __all__ = [
 class CodecKind(str, Enum):
     REPRESENTATION = "representation"
     SELECTION = "selection"
-
-
-class SelectionError(ValueError):
-    """A selector returned indices that do not describe a subset of the scan."""
 
 
 class Codec(abc.ABC):

@@ -13,8 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
+from lwbench.deps import import_open3d
+from lwbench.errors import DataFormatError
 from lwbench.sensor import SensorModel
-from lwbench.types import Frame, LwbenchError
+from lwbench.types import Frame
 
 __all__ = [
     "ScanArrays",
@@ -29,10 +31,6 @@ __all__ = [
 ]
 
 SENSOR_FILE = "sensor.json"  # lwbench's addition to the KITTI layout: the sensor model
-
-
-class DataFormatError(LwbenchError, ValueError):
-    """A file on disk that is not in the format its name or folder promises."""
 
 
 @dataclass
@@ -88,7 +86,7 @@ def read_kitti_bin(path: str | Path) -> ScanArrays:
 def read_point_file(path: str | Path) -> ScanArrays:
     """A PCD or PLY file through Open3D's tensor reader, which keeps intensity, ring and
     timestamp fields (the legacy reader drops them) and reads PCD ``binary_compressed``."""
-    import open3d as o3d
+    o3d = import_open3d()
 
     path = Path(path)
     if path.suffix.lower() == ".bin":

@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from lwbench.types import LwbenchError
+from lwbench.errors import PayloadError
 
 __all__ = ["Payload", "PayloadError", "FORMAT_VERSION", "MAGIC", "pose_to_vec", "vec_to_pose"]
 
@@ -36,10 +36,6 @@ MAGIC = b"LWBP"
 FORMAT_VERSION = 1
 _FLAG_POSE = 0x01
 _POSE = struct.Struct("<6f")
-
-
-class PayloadError(LwbenchError, ValueError):
-    """A payload that is not a well-formed lwbench payload (or not one this codec can read)."""
 
 
 def pose_to_vec(pose: np.ndarray) -> np.ndarray:

@@ -18,16 +18,12 @@ import pluggy
 from lwbench import hookspecs
 from lwbench.codec import Codec
 from lwbench.dataset import Dataset
+from lwbench.errors import PluginError
 from lwbench.metric import FrameMetric, SequenceMetric
-from lwbench.types import LwbenchError
 
 __all__ = ["Registry", "PluginFailure", "PluginError", "get_registry", "ENTRY_POINT_GROUP"]
 
 ENTRY_POINT_GROUP = "lwbench"
-
-
-class PluginError(LwbenchError):
-    """A plugin failed to load (raised only in strict mode) or a name is unknown."""
 
 
 @dataclass(frozen=True)

@@ -30,17 +30,14 @@ import numpy as np
 
 from lwbench.codec import Codec, SelectionCodec
 from lwbench.dataset import Dataset
+from lwbench.errors import DecodeError, LwbenchError, ParameterError
 from lwbench.measure import PeakMemory, Stopwatch
 from lwbench.metric import Evaluation, SequenceEvaluation
 from lwbench.registry import Registry, get_registry
 from lwbench.store import ResultRow, ResultStore, canonical_json, environment_versions, machine_description
-from lwbench.types import Frame, LwbenchError, ParameterError, resolve_params
+from lwbench.types import Frame, resolve_params
 
 __all__ = ["CodecConfig", "DatasetSpec", "RunSummary", "Runner", "expand_codec_configs"]
-
-
-class DecodeError(LwbenchError):
-    """A codec's decode returned something that is not a finite (M, 3) cloud."""
 
 
 @dataclass(frozen=True)

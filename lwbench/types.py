@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from lwbench.errors import InvalidFrameError, LwbenchError, ParameterError
 from lwbench.sensor import SensorModel
 
 __all__ = [
@@ -19,18 +20,6 @@ __all__ = [
     "ParameterError",
     "resolve_params",
 ]
-
-
-class LwbenchError(Exception):
-    """Base class of the errors lwbench raises on purpose (user-facing, no traceback needed)."""
-
-
-class InvalidFrameError(LwbenchError, ValueError):
-    """A scan that cannot be evaluated: wrong shape or dtype, NaN/inf coordinates."""
-
-
-class ParameterError(LwbenchError, ValueError):
-    """A parameter value that is unknown, of the wrong type or out of its declared range."""
 
 
 @dataclass(frozen=True, eq=False)

@@ -18,13 +18,13 @@ import math
 import numpy as np
 from scipy.spatial import cKDTree
 
-from lwbench import Evaluation, FrameMetric
+from lwbench import Evaluation, FrameMetric, import_open3d
 
 NORMAL_NEIGHBOURS = 12
 
 
 def _normals(points: np.ndarray) -> np.ndarray:
-    import open3d as o3d
+    o3d = import_open3d()
 
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points.astype(np.float64)))
     pcd.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(NORMAL_NEIGHBOURS))

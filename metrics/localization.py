@@ -28,11 +28,15 @@ frames (the given first pose is left out of the APE statistics; RPE uses every c
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import open3d as o3d
 from lwbench_metrics.trajectory import absolute_errors, error_statistics, relative_errors
+
+from lwbench import import_open3d
+
+if TYPE_CHECKING:
+    import open3d as o3d
 
 __all__ = [
     "ICP_PARAMS",
@@ -43,8 +47,6 @@ __all__ = [
     "track_odometry",
     "pose_metrics",
 ]
-
-_reg = o3d.pipelines.registration
 
 # The fixed settings; changing one changes every codec's numbers, so it is stored per result.
 ICP_PARAMS: dict[str, Any] = {
@@ -74,6 +76,7 @@ class TrackingResult:
 
 
 def _cloud(points: np.ndarray) -> o3d.geometry.PointCloud:
+    o3d = import_open3d()
     return o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points, dtype=np.float64)))
 
 
@@ -92,7 +95,7 @@ def _voxel_keys(points: np.ndarray, voxel: float) -> np.ndarray:
 
 def _with_normals(pc: o3d.geometry.PointCloud, p: dict[str, Any]) -> o3d.geometry.PointCloud:
     if len(pc.points) >= 3:
-        pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(p["normal_radius"], p["normal_max_nn"]))
+        pc.estimate_normals(import_open3d().geometry.KDTreeSearchParamHybrid(p["normal_radius"], p["normal_max_nn"]))
     return pc
 
 
@@ -123,7 +126,7 @@ class VoxelMap:
             counts[rows] -= c
         keep = counts > 0
         pc = _cloud(sums[keep] / counts[keep, None])
-        pc.normals = o3d.utility.Vector3dVector(self.normals[keep])
+        pc.normals = import_open3d().utility.Vector3dVector(self.normals[keep])
         return pc
 
 
@@ -183,16 +186,17 @@ def _register(
     src = _query(source, p)
     if len(src.points) < p["min_correspondences"] or len(target.points) < p["min_correspondences"]:
         return init, True
+    reg = import_open3d().pipelines.registration
     gates = p["max_corr_dist"]
     pose = init
     for gate in gates if isinstance(gates, list | tuple) else (gates,):
-        res = _reg.registration_icp(
+        res = reg.registration_icp(
             src,
             target,
             gate,
             pose,
-            _reg.TransformationEstimationPointToPlane(),
-            _reg.ICPConvergenceCriteria(p["rel_fitness"], p["rel_rmse"], p["max_iter"]),
+            reg.TransformationEstimationPointToPlane(),
+            reg.ICPConvergenceCriteria(p["rel_fitness"], p["rel_rmse"], p["max_iter"]),
         )
         pose = res.transformation
     failed = res.fitness < p["min_fitness"] or len(res.correspondence_set) < p["min_correspondences"]

@@ -8,9 +8,10 @@ street too), scanned by a preset sensor along a gently curving path.
 from __future__ import annotations
 
 import numpy as np
-import open3d as o3d
 
-from lwbench import Dataset, Frame, SensorModel, get_sensor
+from lwbench import Dataset, Frame, SensorModel, get_sensor, import_open3d
+
+o3d = import_open3d()
 
 # A small 32-beam sensor (28,800 rays) with a street-sized range, so the fast tests stay fast.
 TEST32 = SensorModel("test32", tuple(np.linspace(-25.0, 12.0, 32)), 0.4, 0.5, 60.0, 10.0)

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import numpy as np
-import open3d as o3d
 import pytest
 
+from lwbench import import_open3d
 from lwbench.datasets import KittiDataset, PointFileDataset
 from lwbench.io import read_kitti_bin, read_pose_file, write_kitti_sequence
+
+o3d = import_open3d()
 
 
 def test_kitti00_xyz_only_bins_with_lidar_poses(real_data):

@@ -8,7 +8,7 @@ from lwbench_plugins.sim import SimDataset
 from lwbench_plugins.sim.mesh import Material, MeshBuilder
 from lwbench_plugins.sim.raycast import Raycaster
 
-from lwbench import ParameterError, SensorModel, get_sensor
+from lwbench import ParameterError, SensorModel, get_sensor, import_open3d
 
 
 @pytest.fixture(autouse=True)
@@ -221,7 +221,7 @@ def test_registered_as_a_dataset():
 
 
 def _icp(source, target, init: np.ndarray) -> np.ndarray:
-    import open3d as o3d
+    o3d = import_open3d()
 
     def cloud(f):
         pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(f.points.astype(np.float64)))

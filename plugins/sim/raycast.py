@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lwbench import SensorModel
+from lwbench import SensorModel, import_open3d
 
 from .mesh import Mesh
 
@@ -58,7 +58,7 @@ class Raycaster:
     """A mesh loaded into Open3D's ray-casting scene, ready to scan with any sensor model."""
 
     def __init__(self, mesh: Mesh) -> None:
-        import open3d as o3d
+        o3d = import_open3d()
 
         self.mesh = mesh
         self._o3d = o3d

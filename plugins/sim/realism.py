@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lwbench import read_kitti_bin
+from lwbench import import_open3d, read_kitti_bin
 
 from .dataset import SimDataset
 
@@ -54,7 +54,7 @@ def _row(name: str, stats: list[dict[str, float]]) -> str:
 def icp_error(source: np.ndarray, target: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
     """Translation (m) and rotation (deg) error of point-to-plane ICP aligning ``source`` onto
     ``target`` from the identity, against the true transform ``truth``."""
-    import open3d as o3d
+    o3d = import_open3d()
 
     def cloud(p: np.ndarray):
         pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(p.astype(np.float64))).voxel_down_sample(0.25)

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 from lwbench_plugins.keypoints import ISS, SIFT3D, Harris3D, KeypointSelector
 
-from lwbench import Frame, get_sensor
+from lwbench import Frame, get_sensor, import_open3d
 
 KITTI = Path(__file__).resolve().parents[2].parent / "shared/data/real/kitti00_frames0-1/000000.bin"
 BUDGET = {"points": 10_000}  # PocoNet keeps 8,000-10,000 points per KITTI scan
@@ -39,7 +39,7 @@ def scan() -> Frame:
 
 def open3d_iss(frame: Frame, salient: float = 0.0, non_max: float = 0.0):
     """Open3D's ISS; radii 0 = its own heuristic (6x / 4x the mean nearest-neighbour distance)."""
-    import open3d as o3d
+    o3d = import_open3d()
 
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(frame.points.astype(np.float64)))
     return o3d.geometry.keypoint.compute_iss_keypoints(cloud, salient_radius=salient, non_max_radius=non_max)

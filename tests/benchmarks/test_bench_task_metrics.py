@@ -17,7 +17,6 @@ from functools import cache
 from pathlib import Path
 
 import numpy as np
-import open3d as o3d
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -25,7 +24,9 @@ from _task_scene import StreetDataset  # noqa: E402
 from lwbench_metrics import task  # noqa: E402
 from lwbench_metrics.task import LocalizationMetric, OccupancyMetric, OdometryMetric  # noqa: E402
 
-from lwbench import SequenceEvaluation  # noqa: E402
+from lwbench import SequenceEvaluation, import_open3d  # noqa: E402
+
+o3d = import_open3d()
 
 FRAMES = 10
 
