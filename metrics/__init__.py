@@ -7,15 +7,15 @@ One module per family; every codec is scored by the same code. Definitions: DESI
 from __future__ import annotations
 
 from lwbench_metrics.geometry import GeometryMetric
-from lwbench_metrics.range_image import RangeImageMetric
+from lwbench_metrics.ranges import RangeMetric
 from lwbench_metrics.runtime import RuntimeMetric
 from lwbench_metrics.size import SizeMetric
 
 from lwbench import FrameMetric, hookimpl
 
-__all__ = ["GeometryMetric", "RangeImageMetric", "RuntimeMetric", "SizeMetric"]
+__all__ = ["GeometryMetric", "RangeMetric", "RuntimeMetric", "SizeMetric"]
 
 
 @hookimpl
 def lwbench_metrics() -> list[type[FrameMetric]]:
-    return [SizeMetric, RangeImageMetric, GeometryMetric, RuntimeMetric]
+    return [SizeMetric, RangeMetric, GeometryMetric, RuntimeMetric]

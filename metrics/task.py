@@ -2,7 +2,7 @@
 
 Registered through the ``task_metrics`` entry point; the runner calls each once per codec
 configuration when the dataset has ground-truth poses. Every number is computed with the fixed
-settings in each class's ``params`` (stored with the result).
+settings in each class's ``settings`` (part of the result's key).
 
 Ids (DESIGN.md): ``ate_rmse``, ``ate_mean`` (m), ``rot_err_deg``, ``rpe_trans`` (m),
 ``rpe_rot_deg``, ``map_points``, ``map_share``, ``icp_failures``, ``occ_iou``, ``occ_precision``,
@@ -12,6 +12,7 @@ Ids (DESIGN.md): ``ate_rmse``, ``ate_mean`` (m), ``rot_err_deg``, ``rpe_trans`` 
 
 from __future__ import annotations
 
+import json
 from collections import OrderedDict
 from typing import Any
 
@@ -76,20 +77,34 @@ class LocalizationMetric(SequenceMetric):
         "icp_failures",
         "map_points",
         "map_share",
+        "icp_failures_original",
     )
+    version = "2"  # 2: icp_failures_original
     description = (
         "Map of decoded scans at GT poses (voxel grid filter), each decoded scan tracked against it "
         "with point-to-plane ICP from the previous estimate; ATE/rotation/mAPE over tracked frames, "
-        "RPE rmse per frame, map size and its share of all original points."
+        "RPE rmse per frame, map size and its share of all original points; icp_failures_original: "
+        "the same tracking on the original scans (if they fail, no codec's localization means anything)."
     )
-    params = dict(ICP_PARAMS)
+    settings = dict(ICP_PARAMS)
+
+    def _track(self, scans: list[np.ndarray], gt: np.ndarray):
+        world_map = build_map(scans, gt, self.settings)
+        return world_map, track_against_map(scans, gt[0], world_map, self.settings)
 
     def compute(self, seq: SequenceEvaluation) -> dict[str, float | None]:
         gt, n_original = _ground_truth(seq)
-        world_map = build_map(seq.decoded, gt, self.params)
-        out = pose_metrics(gt, track_against_map(seq.decoded, gt[0], world_map, self.params))
+        world_map, tracking = self._track(seq.decoded, gt)
+        out = pose_metrics(gt, tracking)
         out["map_points"] = float(len(world_map))
         out["map_share"] = len(world_map) / n_original if n_original else None
+
+        def original_failures() -> int:
+            originals = [seq.original(i).points for i in range(len(seq.frame_indices))]
+            return int(self._track(originals, gt)[1].failed.sum())
+
+        settings_key = json.dumps(self.settings, sort_keys=True, default=str)
+        out["icp_failures_original"] = float(_cached(("loc_ref", settings_key) + _seq_key(seq), original_failures))
         return out
 
 
@@ -110,11 +125,11 @@ class OdometryMetric(SequenceMetric):
         "Decoded scans registered to the previous decoded scan (point-to-plane ICP, constant-velocity "
         "initial guess) and chained from the first GT pose: the drift of a receiver of the stream."
     )
-    params = dict(ICP_PARAMS)
+    settings = dict(ICP_PARAMS)
 
     def compute(self, seq: SequenceEvaluation) -> dict[str, float | None]:
         gt, _ = _ground_truth(seq)
-        return pose_metrics(gt, track_odometry(seq.decoded, gt[0], self.params), prefix="odom_")
+        return pose_metrics(gt, track_odometry(seq.decoded, gt[0], self.settings), prefix="odom_")
 
 
 def _suffix(voxel: float, first: bool) -> str:
@@ -125,7 +140,7 @@ class OccupancyMetric(SequenceMetric):
     """Log-odds voxel occupancy (hits and ray-cast free space) of decoded vs original scans."""
 
     name = "occupancy"
-    params = dict(OCCUPANCY_PARAMS)
+    settings = dict(OCCUPANCY_PARAMS)
     ids = tuple(
         f"occ_{m}{_suffix(v, i == 0)}"
         for i, v in enumerate(OCCUPANCY_PARAMS["resolutions"])
@@ -139,7 +154,7 @@ class OccupancyMetric(SequenceMetric):
     def compute(self, seq: SequenceEvaluation) -> dict[str, float | None]:
         gt, _ = _ground_truth(seq)
         sensor = seq.original(0).sensor
-        p = self.params
+        p = self.settings
         out: dict[str, float | None] = {}
         for i, v in enumerate(p["resolutions"]):
 
