@@ -20,7 +20,7 @@ from lwbench.io import SENSOR_FILE, read_kitti_bin, read_point_file, write_kitti
 from lwbench.metric import Evaluation, FrameMetric, SequenceEvaluation, SequenceMetric
 from lwbench.payload import Payload, PayloadError
 from lwbench.points import POINT_ENCODINGS, pack_points, unpack_points
-from lwbench.sensor import SENSOR_PRESETS, RangeImage, SensorModel, get_sensor
+from lwbench.sensor import SENSOR_PRESETS, RangeImage, SensorModel, get_sensor, register_sensor
 from lwbench.types import Frame, InvalidFrameError, LwbenchError, Param, ParameterError
 
 __version__ = "0.1.0"
@@ -56,6 +56,7 @@ __all__ = [
     "pack_points",
     "read_kitti_bin",
     "read_point_file",
+    "register_sensor",
     "resolve_device",
     "unpack_points",
     "write_kitti_sequence",

@@ -20,6 +20,7 @@ import numpy as np
 from lwbench.errors import ParameterError, PayloadError, SelectionError
 from lwbench.payload import Payload
 from lwbench.points import POINT_ENCODINGS, pack_points, unpack_points
+from lwbench.sensor import SensorModel, UnknownSensorError, register_sensor
 from lwbench.types import Frame, Param, resolve_params
 
 __all__ = [
@@ -87,6 +88,26 @@ class Codec(abc.ABC):
     def read_payload(self, data: bytes) -> Payload:
         """Parse and check a payload meant for this codec (raises ``PayloadError``)."""
         return Payload.from_bytes(data, expect_codec=self.name)
+
+    @staticmethod
+    def sensor_meta(sensor: SensorModel) -> dict:
+        """The sensor as a payload names it (a preset or an id: see :meth:`SensorModel.to_wire`).
+
+        The sensor is also registered in this process, which therefore decodes its own payloads;
+        a receiver in another process learns the table once, from the stream (``sensor.json``)."""
+        register_sensor(sensor)
+        return sensor.to_wire()
+
+    @classmethod
+    def read_sensor(cls, payload: Payload, key: str = "sensor") -> SensorModel:
+        """The sensor a payload's metadata names under ``key``, or ``PayloadError``."""
+        value = cls.meta_field(payload, key, dict)
+        try:
+            return SensorModel.from_wire(value)
+        except UnknownSensorError as exc:
+            raise PayloadError(f"{payload.codec_id} payload: {exc.args[0]}") from None
+        except (KeyError, TypeError, ValueError, OverflowError) as exc:
+            raise PayloadError(f"{payload.codec_id} payload: bad sensor description ({exc})") from None
 
     @staticmethod
     def meta_field(payload: Payload, key: str, kind: type | tuple[type, ...]) -> Any:

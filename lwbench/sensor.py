@@ -15,13 +15,19 @@ Conventions (fixed, so payloads and metrics agree):
 
 from __future__ import annotations
 
+import functools
+import hashlib
 import json
 import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["SensorModel", "RangeImage", "SENSOR_PRESETS", "get_sensor"]
+__all__ = ["SensorModel", "RangeImage", "SENSOR_PRESETS", "get_sensor", "register_sensor", "UnknownSensorError"]
+
+
+class UnknownSensorError(LookupError):
+    """A payload names a sensor by id that this receiver has not been told about."""
 
 
 @dataclass(frozen=True)
@@ -188,6 +194,45 @@ class SensorModel:
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), separators=(",", ":"))
 
+    # -- on the wire: a reference, not the table ----------------------------------------------
+    @functools.cached_property
+    def sensor_id(self) -> str:
+        """A short, stable name for this exact model: 16 hex digits of the SHA-256 of its full
+        table. Two models with the same id are equal (the table is the identity)."""
+        blob = json.dumps(self.to_dict(full=True), sort_keys=True, separators=(",", ":"))
+        return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+    def to_wire(self) -> dict:
+        """What a payload carries to name its sensor: ``{"preset": name}`` for a preset, else
+        ``{"id": sensor_id}`` (~25 bytes). A receiver needs a sensor's table once, not in every
+        frame -- a derived 64-beam table is ~1.5 kB of JSON, which per frame would be a fifth of
+        a VSGP payload -- so the table travels once per stream (:func:`register_sensor` on the
+        receiving side; the runner does it for each frame's sensor before decoding)."""
+        preset = SENSOR_PRESETS.get(self.name)
+        if preset is not None and preset == self:
+            return {"preset": self.name}
+        return {"id": self.sensor_id}
+
+    @classmethod
+    def from_wire(cls, d: dict) -> SensorModel:
+        """Inverse of :meth:`to_wire` (a full table, as older payloads carried, also reads).
+
+        Raises :class:`UnknownSensorError` for an id this process was not told about and
+        ``ValueError`` / ``KeyError`` / ``TypeError`` for a malformed description."""
+        if not isinstance(d, dict):
+            raise TypeError(f"a sensor description is an object, got {type(d).__name__}")
+        if "id" in d and len(d) == 1:
+            key = d["id"]
+            if not isinstance(key, str) or key not in _CATALOG:
+                raise UnknownSensorError(
+                    f"sensor {key!r} is not known to this receiver: its table travels once per stream "
+                    "(register it with lwbench.register_sensor, or decode with the stream's sensor.json)"
+                )
+            return _CATALOG[key]
+        if "preset" in d and not isinstance(d["preset"], str):
+            raise TypeError("sensor preset must be a name")
+        return cls.from_dict(d)
+
     def with_max_range(self, max_range: float) -> SensorModel:
         return SensorModel(
             self.name if max_range == self.max_range else f"{self.name}@{max_range:g}m",
@@ -275,6 +320,17 @@ SENSOR_PRESETS: dict[str, SensorModel] = {
     # Ouster OS1-128 in 1024x10 mode, 45 deg vertical field of view.
     "os1-128": SensorModel("os1-128", tuple(np.linspace(-22.5, 22.5, 128)), 360.0 / 1024, 0.3, 120.0, 10.0),
 }
+
+
+# Sensors this process has been told about, by id (the receiving side of "the table travels once
+# per stream"). Presets need no registration.
+_CATALOG: dict[str, SensorModel] = {}
+
+
+def register_sensor(sensor: SensorModel) -> str:
+    """Tell this process (a decoder) about a sensor, so payloads naming it by id decode."""
+    _CATALOG.setdefault(sensor.sensor_id, sensor)
+    return sensor.sensor_id
 
 
 def get_sensor(name: str) -> SensorModel:

@@ -81,3 +81,41 @@ def test_point_body_of_wrong_size_raises():
     body = pack_points(np.zeros((10, 3), np.float32))
     with pytest.raises(PayloadError):
         unpack_points(body[:-1])
+
+
+def test_a_derived_sensor_travels_as_a_short_id_not_its_table():
+    from lwbench import SensorModel, register_sensor
+    from lwbench.registry import get_registry
+    from lwbench.testing import room_scan
+
+    table = tuple(float(e) for e in np.linspace(-24.9, 2.1, 64) + np.random.default_rng(0).normal(0, 0.05, 64))
+    sensor = SensorModel("derived", table, 360 / 2000, 0.9, 120.0, 10.0)
+    frame = room_scan(sensor, seed=1)
+    codec = get_registry().codec("vsgp")(num_inducing=50)
+    data = codec.encode(frame)
+    meta = Payload.from_bytes(data).meta
+    assert meta["sensor"] == {"id": sensor.sensor_id}
+    header = len(data) - len(Payload.from_bytes(data).body)
+    assert header < 120, header  # the full table would be ~1.5 kB of JSON
+    fresh = SensorModel("derived", table, 360 / 2000, 0.9, 120.0, 10.0)
+    assert fresh.sensor_id == sensor.sensor_id
+    # A receiver that was never told about the sensor refuses clearly ...
+    from lwbench import sensor as sensor_module
+
+    sensor_module._CATALOG.pop(sensor.sensor_id, None)
+    with pytest.raises(PayloadError, match="not known to this receiver"):
+        get_registry().codec("vsgp")().decode(data)
+    # ... and decodes once the stream's table has arrived.
+    register_sensor(fresh)
+    assert len(get_registry().codec("vsgp")().decode(data)) > 0
+
+
+def test_a_sensor_id_names_exactly_one_table():
+    from lwbench import SensorModel, get_sensor
+
+    a = get_sensor("hdl64e").with_max_range(80.0)
+    b = SensorModel(a.name, a.elevations_deg[:-1] + (a.elevations_deg[-1] + 1e-6,), a.azimuth_step_deg,
+                    a.min_range, a.max_range, a.rate_hz)
+    assert a.sensor_id != b.sensor_id and len(a.sensor_id) == 16
+    assert get_sensor("vlp16").to_wire() == {"preset": "vlp16"}
+    assert a.to_wire() == {"id": a.sensor_id}

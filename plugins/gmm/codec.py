@@ -42,7 +42,6 @@ from lwbench import (
     Param,
     PayloadError,
     RepresentationCodec,
-    SensorModel,
     resolve_device,
 )
 
@@ -166,7 +165,7 @@ class GMMCodec(RepresentationCodec):
         body = _HEAD.pack(dt_code, n_draw, k_occ, k_free) + params.astype(dt).tobytes()
         meta = {"truncate": cfg["truncate"], "seed": cfg["seed"], "reproject": cfg["reproject"]}
         if cfg["reproject"]:
-            meta["sensor"] = frame.sensor.to_dict()
+            meta["sensor"] = self.sensor_meta(frame.sensor)
         return self.make_payload(frame, meta, body)
 
     # -- decode ------------------------------------------------------------------------------
@@ -208,10 +207,6 @@ class GMMCodec(RepresentationCodec):
             x = x[mixture_log_prob(w, mu, chol, x) >= mixture_log_prob(*free, x)]
         pts = x.numpy().astype(np.float32)
         if reproject:
-            sensor_dict = self.meta_field(payload, "sensor", dict)
-            try:
-                sensor = SensorModel.from_dict(sensor_dict)
-            except (KeyError, TypeError, ValueError) as exc:
-                raise PayloadError(f"gmm payload: bad sensor description: {exc}") from None
+            sensor = self.read_sensor(payload)
             pts = sensor.unproject(sensor.project(pts).ranges)
         return pts

@@ -99,7 +99,7 @@ class RangeImageCodec(RepresentationCodec):
         mode, predict, refine = self.config["mode"], self.config["predict"], self.config["refine"]
         shuffle = self.config["shuffle"] == "on" or (self.config["shuffle"] == "auto" and mode == "quantized")
         meta: dict[str, Any] = {
-            "sensor": sensor.to_dict(), "mode": mode, "predict": predict, "shuffle": shuffle, "refine": refine
+            "sensor": self.sensor_meta(sensor), "mode": mode, "predict": predict, "shuffle": shuffle, "refine": refine
         }
         if mode == "lossless":
             values = np.ascontiguousarray(ranges, dtype="<f4").view("<u4").astype(np.int64)
@@ -138,17 +138,13 @@ class RangeImageCodec(RepresentationCodec):
         shuffle = self.meta_field(payload, "shuffle", bool)
         refine = self.meta_field(payload, "refine", str)
         width = self.meta_field(payload, "width", int)
-        sensor_dict = self.meta_field(payload, "sensor", dict)
         if mode not in ("quantized", "lossless") or predict not in PREDICTORS or width not in (2, 4):
             raise PayloadError(f"rangeimage payload: unsupported mode/predict/width {mode}/{predict}/{width}")
         if mode == "lossless" and width != 4:
             raise PayloadError("rangeimage payload: lossless images are 4 bytes per cell")
         if refine not in _REFINE:
             raise PayloadError(f"rangeimage payload: unknown refinement {refine!r}")
-        try:
-            sensor = SensorModel.from_dict(sensor_dict)
-        except (KeyError, TypeError, ValueError) as exc:
-            raise PayloadError(f"rangeimage payload: bad sensor description ({exc})") from None
+        sensor = self.read_sensor(payload)
         if sensor.n_rays > _MAX_RAYS:
             raise PayloadError(f"rangeimage payload: a grid of {sensor.n_rays} rays is implausibly large")
         n_table = table_size(sensor) if refine == "beam" else 0

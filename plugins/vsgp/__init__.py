@@ -100,7 +100,7 @@ class VSGPCodec(RepresentationCodec):
         res = fit_scan(ranges, sensor, r_oc, self.fit_config(), self._device())
         t2 = time.perf_counter()
         body = pack_body(self.config["body"], res.z, res.u, res.hyper.as_list(), r_oc, _el_span(sensor))
-        meta = {"sensor": sensor.to_dict(), "body": self.config["body"]}
+        meta = {"sensor": self.sensor_meta(sensor), "body": self.config["body"]}
         out = self.make_payload(frame, meta, body)
         self.last_timings = {"projection": t1 - t0, **res.timings, "serialize": time.perf_counter() - t2,
                              "steps_run": float(res.steps_run)}
@@ -110,10 +110,7 @@ class VSGPCodec(RepresentationCodec):
         t0 = time.perf_counter()
         payload = self.read_payload(data)
         fmt = self.meta_field(payload, "body", str)
-        try:
-            sensor = SensorModel.from_dict(self.meta_field(payload, "sensor", dict))
-        except (KeyError, TypeError, ValueError) as exc:
-            raise PayloadError(f"vsgp payload: bad sensor description ({exc})") from None
+        sensor = self.read_sensor(payload)
         z, u, hyper, r_oc = unpack_body(fmt, payload.body, _el_span(sensor))
         timings = {"parse": time.perf_counter() - t0}
         try:
