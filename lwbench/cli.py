@@ -16,8 +16,9 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from lwbench.errors import LwbenchError
+from lwbench.leaderboard import DEFAULT_MIN_COVERAGE
 from lwbench.registry import Registry, get_registry
-from lwbench.types import LwbenchError
 
 app = typer.Typer(
     add_completion=False,
@@ -177,7 +178,14 @@ def run(
     seed: Annotated[int, typer.Option(help="Seed for every codec/dataset that declares one.")] = 0,
     sequence_metrics: Annotated[bool, typer.Option(help="Localization/occupancy metrics when poses exist.")] = True,
     retry_failed: Annotated[bool, typer.Option(help="Re-evaluate stored failures.")] = False,
+    force: Annotated[bool, typer.Option("--force", help="Recompute every row, even those already stored.")] = False,
+    metric_param: Annotated[
+        list[str], typer.Option("--metric-param", help="METRIC.KEY=VALUE, e.g. geometry.peak=59.70 (part of the key).")
+    ] = [],  # noqa: B006
     sort: Annotated[str, typer.Option(help="Metric to sort the printed leaderboard by.")] = "ratio",
+    min_coverage: Annotated[
+        float, typer.Option(help="Flag configurations whose coverage is below this.", min=0, max=1)
+    ] = DEFAULT_MIN_COVERAGE,
 ) -> None:
     """Evaluate codecs on a dataset; every result lands in the store; print the leaderboard."""
     from lwbench.leaderboard import build_leaderboard
@@ -193,6 +201,7 @@ def run(
         codecs = list(dict.fromkeys(codec)) or [c for c in DEFAULT_CODECS if c in reg.codecs]
         values = _codec_values(reg, codecs, param)
         configs = [cfg for c in codecs for cfg in expand_codec_configs(reg.codec(c), values[c], seed)]
+        metric_params = _metric_params(reg, metric_param)
         with ResultStore(store) as results:
             runner = Runner(
                 results,
@@ -203,6 +212,8 @@ def run(
                 workers=workers,
                 sequence_metrics=sequence_metrics,
                 retry_failed=retry_failed,
+                force=force,
+                metric_params=metric_params,
                 registry=reg,
             )
             n_total = len(runner.frame_indices) * len(configs)
@@ -241,12 +252,26 @@ def run(
                     "[yellow]interrupted:[/] finished rows are stored; run the same command again to resume"
                 )
                 raise typer.Exit(130)
-            entries = build_leaderboard(results, dataset=runner.dataset_id, sort=sort, defaults=_defaults(reg))
-            wanted = {cfg.label for cfg in configs}
+            entries = build_leaderboard(
+                results, sort=sort, defaults=_defaults(reg), keys=runner.keys(), min_coverage=min_coverage
+            )
             console.print(f"dataset: {spec.label}")
-            _print_table([e for e in entries if e.full_label in wanted], sort)
+            _print_table(entries, sort)
     except LwbenchError as exc:
         _fail(str(exc))
+
+
+def _metric_params(reg: Registry, items: list[str]) -> dict[str, dict]:
+    """``METRIC.KEY=VALUE`` options -> {metric: {key: value}}, checked against the registry."""
+    out: dict[str, dict] = {}
+    for item in items:
+        target, sep, value = item.partition("=")
+        metric, dot, key = target.partition(".")
+        if not sep or not dot:
+            _fail(f"--metric-param must look like METRIC.KEY=VALUE, got {item!r}")
+        out.setdefault(metric.strip(), {})[key.strip()] = value.strip()
+    reg.check_metric_params(out)
+    return out
 
 
 def _defaults(reg: Registry) -> dict[str, dict]:
@@ -279,6 +304,9 @@ def leaderboard(
     sort: Annotated[str, typer.Option(help="Metric id to sort by.")] = "ratio",
     format: Annotated[str, typer.Option("--format", help="table | md | csv | json")] = "table",
     columns: Annotated[str | None, typer.Option(help="Comma-separated metric ids to show (table/md).")] = None,
+    min_coverage: Annotated[
+        float, typer.Option(help="Flag configurations whose coverage is below this.", min=0, max=1)
+    ] = DEFAULT_MIN_COVERAGE,
 ) -> None:
     """Aggregate stored rows (mean, median, p95 per codec configuration)."""
     from lwbench.leaderboard import (
@@ -295,8 +323,13 @@ def leaderboard(
         _fail(f"--format must be table, md, csv or json, got {format!r}")
     if not store.exists():
         _fail(f"no results store at {store} (run `lwbench run` first)")
-    with ResultStore(store) as results:
-        entries = build_leaderboard(results, dataset=dataset, sort=sort, defaults=_defaults(_registry()))
+    try:
+        with ResultStore(store, readonly=True) as results:
+            entries = build_leaderboard(
+                results, dataset=dataset, sort=sort, defaults=_defaults(_registry()), min_coverage=min_coverage
+            )
+    except LwbenchError as exc:
+        _fail(str(exc))
     if not entries:
         _fail("no results" + (f" for dataset {dataset!r}" if dataset else "") + f" in {store}")
     if format == "json":

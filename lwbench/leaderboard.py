@@ -3,6 +3,16 @@
 Frame metrics are summarised over the frames that succeeded (mean, median, p95); sequence
 metrics have one value per configuration. ``failures`` counts failed rows of either kind, so a
 codec that crashes on half the frames cannot hide behind a good mean.
+
+Rows are never averaged across ways of scoring: when the store holds rows of one configuration
+scored by different metric versions / parameters or produced by different codec releases, only
+the newest scoring is used (the others are counted in ``stale``).
+
+Quality guard: a configuration is *flagged* when it covers less than ``min_coverage`` of the
+original returns, has failed rows, or failed ICP registrations; localization figures are marked
+not meaningful when the *original* scans already fail ICP on this dataset. Flags travel in every
+format (a ``flags`` list in JSON) and the default order puts unflagged configurations first, so
+a codec cannot rank first by throwing the scan away.
 """
 
 from __future__ import annotations
@@ -41,6 +51,7 @@ LOWER_IS_BETTER = {
     "rpe_rot_deg",
     "map_points",
     "icp_failures",
+    "icp_failures_original",
     "points_out",
 }
 DEFAULT_COLUMNS = (
@@ -59,6 +70,11 @@ DEFAULT_COLUMNS = (
 )
 
 
+DEFAULT_MIN_COVERAGE = 0.9
+# Localization ids, shown as not meaningful when the original scans themselves fail ICP.
+LOCALIZATION_IDS = ("ate_rmse", "ate_mean", "rot_err_deg", "mape", "rpe_trans", "rpe_rot_deg", "icp_failures")
+
+
 @dataclass
 class LeaderboardEntry:
     dataset: str
@@ -70,6 +86,8 @@ class LeaderboardEntry:
     errors: list[str] = field(default_factory=list)
     defaults: dict = field(default_factory=dict, repr=False)
     dataset_id: str = ""
+    flags: list[str] = field(default_factory=list)
+    stale: int = 0
 
     @property
     def full_label(self) -> str:
@@ -84,6 +102,16 @@ class LeaderboardEntry:
     def value(self, metric: str, stat: str = "mean") -> float | None:
         return self.stats.get(metric, {}).get(stat)
 
+    @property
+    def localization_meaningful(self) -> bool:
+        return "localization_not_meaningful" not in self.flags
+
+    def shown(self, metric: str) -> float | None:
+        """The value a table shows: ``None`` for figures flagged not meaningful."""
+        if metric in LOCALIZATION_IDS and not self.localization_meaningful:
+            return None
+        return self.value(metric)
+
     def as_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {
             "dataset": self.dataset,
@@ -92,6 +120,7 @@ class LeaderboardEntry:
             "params": self.params,
             "frames": self.frames,
             "failures": self.failures,
+            "flags": list(self.flags),
         }
         for metric, s in self.stats.items():
             out[metric] = _finite_or_none(s.get("mean"))
@@ -117,6 +146,34 @@ def _summarise(values: list[float]) -> dict[str, float | None]:
     }
 
 
+def _newest_scoring(rows: list[ResultRow]) -> tuple[list[ResultRow], int]:
+    """Per (kind, part), only the rows of the most recently written scoring; and how many rows
+    were left out (scored by other metric versions/parameters or other codec releases)."""
+    by_part: dict[tuple[str, str], dict[str, list[ResultRow]]] = defaultdict(lambda: defaultdict(list))
+    for r in rows:
+        way = json.dumps([r.codec_version, r.plugin_version, r.scoring], sort_keys=True, default=str)
+        by_part[(r.kind, r.part)][way].append(r)
+    kept: list[ResultRow] = []
+    stale = 0
+    for ways in by_part.values():
+        newest = max(ways.values(), key=lambda rs: (max(r.created for r in rs), len(rs)))
+        kept += newest
+        stale += sum(len(rs) for rs in ways.values()) - len(newest)
+    return kept, stale
+
+
+def _flag(entry: LeaderboardEntry, min_coverage: float) -> None:
+    coverage = entry.value("coverage")
+    if coverage is not None and coverage < min_coverage:
+        entry.flags.append("low_coverage")
+    if entry.failures:
+        entry.flags.append("failed_rows")
+    if (entry.value("icp_failures_original") or 0) > 0:
+        entry.flags.append("localization_not_meaningful")
+    elif (entry.value("icp_failures") or 0) > 0:
+        entry.flags.append("icp_failures")
+
+
 def build_leaderboard(
     store: ResultStore,
     *,
@@ -124,12 +181,18 @@ def build_leaderboard(
     sort: str | None = None,
     descending: bool | None = None,
     defaults: dict[str, dict] | None = None,
+    keys: set[str] | None = None,
+    min_coverage: float = DEFAULT_MIN_COVERAGE,
+    flagged_last: bool = True,
 ) -> list[LeaderboardEntry]:
-    """Entries sorted by ``sort`` (best first). ``defaults`` (codec -> declared defaults) only
-    shortens labels to the parameters that differ."""
+    """Entries sorted by ``sort`` (best first; flagged configurations after the others unless
+    ``flagged_last=False``). ``defaults`` (codec -> declared defaults) only shortens labels to
+    the parameters that differ; ``keys`` restricts the board to those rows (what a run asked)."""
     groups: dict[tuple, list[ResultRow]] = defaultdict(list)
     labels: dict[str, str] = {}
     for row in store.rows(dataset=dataset):
+        if keys is not None and row.key not in keys:
+            continue
         # Group by the data's identity, not its label: the same label over changed data (a new
         # simulator version, edited files) is a different dataset and must not be averaged in.
         groups[(row.dataset_id, row.codec, json.dumps(row.params, sort_keys=True))].append(row)
@@ -140,6 +203,7 @@ def build_leaderboard(
         ds = labels[ds_id] if labels[ds_id] not in ambiguous else f"{labels[ds_id]} [{ds_id}]"
         entry = LeaderboardEntry(ds, codec, json.loads(params_json), defaults=(defaults or {}).get(codec, {}))
         entry.dataset_id = ds_id
+        rows, entry.stale = _newest_scoring(rows)
         per_metric: dict[str, list[float]] = defaultdict(list)
         for r in rows:
             if r.status != "ok":
@@ -155,14 +219,16 @@ def build_leaderboard(
                 else:
                     per_metric.setdefault(k, [])
         entry.stats = {k: _summarise(v) for k, v in per_metric.items()}
+        _flag(entry, min_coverage)
         entries.append(entry)
     key = sort or "ratio"
     desc = descending if descending is not None else key not in LOWER_IS_BETTER
 
     def sort_key(e: LeaderboardEntry):
-        v = e.value(key)
+        v = e.shown(key)
         missing = v is None or (isinstance(v, float) and math.isnan(v))
-        return (e.dataset, missing, 0.0 if missing else (-v if desc else v), e.label)
+        flagged = bool(e.flags) and flagged_last
+        return (e.dataset, flagged, missing, 0.0 if missing else (-v if desc else v), e.label)
 
     return sorted(entries, key=sort_key)
 
@@ -184,12 +250,35 @@ def _fmt(v: float | None) -> str:
     return f"{v:.3g}"
 
 
+def _cell(e: LeaderboardEntry, metric: str) -> str:
+    if metric in LOCALIZATION_IDS and not e.localization_meaningful and e.value(metric) is not None:
+        return "n/m"  # the original scans fail ICP here: no codec's figure means anything
+    return _fmt(e.value(metric))
+
+
+FLAG_TEXT = {
+    "low_coverage": "low coverage",
+    "failed_rows": "failed rows",
+    "icp_failures": "ICP failures",
+    "localization_not_meaningful": "loc. n/m",
+}
+
+
 def table_rows(entries: list[LeaderboardEntry], columns: tuple[str, ...]) -> tuple[list[str], list[list[str]]]:
-    """Header and formatted cells; the dataset column only when there is more than one."""
+    """Header and formatted cells; the dataset column only when there is more than one, the
+    flags column only when some entry is flagged."""
     many = len({e.dataset for e in entries}) > 1
-    header = [*(["dataset"] if many else []), "codec", "frames", "fail", *columns]
+    flagged = any(e.flags for e in entries)
+    header = [*(["dataset"] if many else []), "codec", "frames", "fail", *columns, *(["flags"] if flagged else [])]
     rows = [
-        [*([e.dataset] if many else []), e.label, str(e.frames), str(e.failures), *(_fmt(e.value(c)) for c in columns)]
+        [
+            *([e.dataset] if many else []),
+            e.label,
+            str(e.frames),
+            str(e.failures),
+            *(_cell(e, c) for c in columns),
+            *([", ".join(FLAG_TEXT.get(f, f) for f in e.flags)] if flagged else []),
+        ]
         for e in entries
     ]
     return header, rows
@@ -216,7 +305,7 @@ def to_csv(entries: list[LeaderboardEntry]) -> str:
     writer = csv.DictWriter(buf, fieldnames=fields)
     writer.writeheader()
     for d in dicts:
-        writer.writerow({k: json.dumps(v, sort_keys=True) if isinstance(v, dict) else v for k, v in d.items()})
+        writer.writerow({k: json.dumps(v, sort_keys=True) if isinstance(v, (dict, list)) else v for k, v in d.items()})
     return buf.getvalue()
 
 

@@ -44,20 +44,26 @@ class Registry:
     frame_metrics: dict[str, type[FrameMetric]] = field(default_factory=dict)
     sequence_metrics: dict[str, type[SequenceMetric]] = field(default_factory=dict)
     providers: dict[tuple[str, str], str] = field(default_factory=dict)
+    # "dist==version" of the package providing each thing: part of result keys, so a plugin
+    # release with new code is never served its predecessor's cached numbers.
+    plugin_versions: dict[tuple[str, str], str] = field(default_factory=dict)
     failures: list[PluginFailure] = field(default_factory=list)
 
     # -- loading ---------------------------------------------------------------------------
     def load_entry_points(self, group: str = ENTRY_POINT_GROUP) -> None:
         for ep in sorted(md.entry_points(group=group), key=lambda e: e.name):
             dist = ep.dist.name if ep.dist is not None else "?"
+            version = ep.dist.version if ep.dist is not None else "?"
             try:
                 module = ep.load()
             except Exception as exc:  # noqa: BLE001 - any import error is the plugin's, not ours
                 self._fail(ep.name, ep.value, exc)
                 continue
-            self.register(module, ep.name, provider=dist, target=ep.value)
+            self.register(module, ep.name, provider=dist, target=ep.value, version=version)
 
-    def register(self, plugin: Any, name: str, *, provider: str = "?", target: str = "") -> bool:
+    def register(
+        self, plugin: Any, name: str, *, provider: str = "?", target: str = "", version: str = "?"
+    ) -> bool:
         """Register one plugin object and collect what it provides; False if it failed."""
         try:
             self.pm.register(plugin, name=name)
@@ -68,14 +74,14 @@ class Registry:
             self._fail(name, target or repr(plugin), exc)
             return False
         try:
-            self._collect(plugin, name, provider)
+            self._collect(plugin, name, provider, version)
         except Exception as exc:  # noqa: BLE001
             self.pm.unregister(plugin)
             self._fail(name, target or repr(plugin), exc)
             return False
         return True
 
-    def _collect(self, plugin: Any, name: str, provider: str) -> None:
+    def _collect(self, plugin: Any, name: str, provider: str, version: str) -> None:
         def call(hook: str) -> list:
             impl = getattr(plugin, hook, None)
             return list(impl() or []) if impl is not None else []
@@ -106,6 +112,7 @@ class Registry:
         for kind, table, key, cls in found:
             table[key] = cls
             self.providers[(kind, key)] = f"{provider} ({name})"
+            self.plugin_versions[(kind, key)] = f"{provider}=={version}"
 
     def _fail(self, name: str, target: str, exc: BaseException) -> None:
         detail = "".join(traceback.format_exception(type(exc), exc, exc.__traceback__))
@@ -117,6 +124,27 @@ class Registry:
 
     def dataset(self, name: str) -> type[Dataset]:
         return _lookup(self.datasets, name, "dataset", self.failures)
+
+    def plugin_version(self, kind: str, name: str) -> str:
+        return self.plugin_versions.get((kind, name), "?")
+
+    def frame_metric_instances(self, metric_params: dict[str, dict] | None = None) -> list[FrameMetric]:
+        """Every frame metric, configured; ``metric_params`` maps metric name -> parameters."""
+        return _instances(self.frame_metrics, metric_params or {})
+
+    def sequence_metric_instances(self, metric_params: dict[str, dict] | None = None) -> list[SequenceMetric]:
+        return _instances(self.sequence_metrics, metric_params or {})
+
+    def check_metric_params(self, metric_params: dict[str, dict]) -> None:
+        """Reject parameters for metrics that are not installed (values are checked on use)."""
+        known = {**self.frame_metrics, **self.sequence_metrics}
+        unknown = sorted(set(metric_params) - set(known))
+        if unknown:
+            raise PluginError(
+                f"--metric-param for unknown metric(s) {', '.join(unknown)}; metrics: {', '.join(sorted(known))}"
+            )
+        for name, given in metric_params.items():
+            known[name](**given)
 
     def metric_ids(self) -> list[str]:
         ids: list[str] = []
@@ -134,6 +162,10 @@ class Registry:
         if self.failures:
             lines = "\n".join(f"  {f.plugin} ({f.target}): {f.error}" for f in self.failures)
             raise PluginError(f"{len(self.failures)} plugin(s) failed to load:\n{lines}")
+
+
+def _instances(table: dict[str, type], metric_params: dict[str, dict]) -> list:
+    return [cls(**metric_params.get(name, {})) for name, cls in sorted(table.items())]
 
 
 def _check_subclass(cls: Any, base: type, what: str) -> None:

@@ -32,8 +32,9 @@ from lwbench.codec import Codec, SelectionCodec
 from lwbench.dataset import Dataset
 from lwbench.errors import DecodeError, LwbenchError, ParameterError
 from lwbench.measure import PeakMemory, Stopwatch
-from lwbench.metric import Evaluation, SequenceEvaluation
+from lwbench.metric import Evaluation, SequenceEvaluation, SequenceMetric
 from lwbench.registry import Registry, get_registry
+from lwbench.sensor import register_sensor
 from lwbench.store import ResultRow, ResultStore, canonical_json, environment_versions, machine_description
 from lwbench.types import Frame, resolve_params
 
@@ -136,7 +137,9 @@ def _encode_decode(codec_cls: type[Codec], config: CodecConfig, encoder: Codec, 
                 payload = encoder.encode(frame)
         if not isinstance(payload, (bytes, bytearray)):
             raise LwbenchError(f"{config.name}: encode returned {type(payload).__name__}, not bytes")
-        decoder = codec_cls(**config.params)  # fresh: only the bytes cross over
+        # The receiver knows the stream's sensor (its table travels once per stream, not per frame).
+        register_sensor(frame.sensor)
+        decoder = codec_cls(**config.params)  # fresh: only the bytes (and that table) cross over
         with watch.time("decode_ms"):
             decoded = decoder.decode(bytes(payload))
     decoded = np.asarray(decoded)
@@ -152,6 +155,11 @@ class _WorkerState:
     registry: Registry
     datasets: dict[str, Dataset] = field(default_factory=dict)
     encoders: dict[str, Codec] = field(default_factory=dict)
+    metric_params: dict[str, dict] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.metrics = self.registry.frame_metric_instances(self.metric_params)
+        self.scoring = [m.signature() for m in self.metrics]
 
 
 def evaluate_frame(
@@ -172,10 +180,10 @@ def evaluate_frame(
     except Exception as exc:  # noqa: BLE001 - a bad scan fails its rows, not the run
         err = f"loading frame {frame_index}: {type(exc).__name__}: {exc}"
         for cfg in configs:
-            yield _row(spec, dataset_id, frame_index, cfg, registry, seed, "failed", {}, {}, err)
+            yield _row(spec, dataset_id, frame_index, cfg, state, seed, "failed", {}, {}, err)
         return
     frame_cache: dict[str, Any] = {}
-    metrics = [cls() for cls in registry.frame_metrics.values()]
+    metrics = state.metrics
     for cfg in configs:
         codec_cls = registry.codec(cfg.name)
         extra: dict[str, Any] = {}
@@ -199,17 +207,18 @@ def evaluate_frame(
                     except Exception as exc:  # noqa: BLE001
                         raise LwbenchError(f"metric {m.name}: {type(exc).__name__}: {exc}") from exc
             extra.update(watch.ms)
-            row = _row(spec, dataset_id, frame_index, cfg, registry, seed, "ok", values, extra, None)
+            row = _row(spec, dataset_id, frame_index, cfg, state, seed, "ok", values, extra, None)
             if decoded_dir is not None:
-                np.save(Path(decoded_dir) / f"{row.key}.npy", decoded)
+                np.save(Path(decoded_dir) / f"{row.evaluation}.npy", decoded)
         except Exception as exc:  # noqa: BLE001 - the failure is the result
             extra["traceback"] = traceback.format_exc(limit=6)
             err = f"{type(exc).__name__}: {exc}"
-            row = _row(spec, dataset_id, frame_index, cfg, registry, seed, "failed", {}, extra, err)
+            row = _row(spec, dataset_id, frame_index, cfg, state, seed, "failed", {}, extra, err)
         yield row
 
 
-def _row(spec, dataset_id, frame_index, cfg, registry, seed, status, metrics, extra, error) -> ResultRow:
+def _row(spec, dataset_id, frame_index, cfg, state: _WorkerState, seed, status, metrics, extra, error) -> ResultRow:
+    registry = state.registry
     codec_cls = registry.codec(cfg.name)
     return ResultRow(
         kind="frame",
@@ -226,6 +235,8 @@ def _row(spec, dataset_id, frame_index, cfg, registry, seed, status, metrics, ex
         extra=extra,
         versions={**_VERSIONS, "plugin": registry.providers.get(("codec", cfg.name), "?")},
         machine=_MACHINE,
+        plugin_version=registry.plugin_version("codec", cfg.name),
+        scoring=state.scoring,
     )
 
 
@@ -234,12 +245,12 @@ _MACHINE = ""
 _STATE: _WorkerState | None = None
 
 
-def _init_worker(threads: int) -> None:
+def _init_worker(threads: int, metric_params: dict[str, dict]) -> None:
     global _STATE, _VERSIONS, _MACHINE
     import torch
 
     torch.set_num_threads(threads)
-    _STATE = _WorkerState(get_registry())
+    _STATE = _WorkerState(get_registry(), metric_params=metric_params)
     _VERSIONS = environment_versions()
     _MACHINE = machine_description()
 
@@ -266,6 +277,8 @@ class Runner:
         workers: int = 1,
         sequence_metrics: bool = True,
         retry_failed: bool = False,
+        force: bool = False,
+        metric_params: dict[str, dict] | None = None,
         registry: Registry | None = None,
     ) -> None:
         self.store = store
@@ -274,7 +287,11 @@ class Runner:
         self.seed = seed
         self.workers = max(1, workers)
         self.retry_failed = retry_failed
+        self.force = force
+        self.metric_params = metric_params or {}
         self.registry = registry or get_registry()
+        self.state = _WorkerState(self.registry, metric_params=self.metric_params)
+        self.sequence_metric_list = self.registry.sequence_metric_instances(self.metric_params)
         self.dataset = dataset.build(self.registry)
         self.dataset_id = self.dataset.identity()
         n = len(self.dataset)
@@ -285,12 +302,24 @@ class Runner:
             self.decoded_dir = store.path.with_name(store.path.name + ".decoded")
             self.decoded_dir.mkdir(exist_ok=True)
 
+    def _frame_row(self, frame_index: int, cfg: CodecConfig) -> ResultRow:
+        return _row(self.spec, self.dataset_id, frame_index, cfg, self.state, self.seed, "ok", {}, {}, None)
+
     def _frame_key(self, frame_index: int, cfg: CodecConfig) -> str:
-        return _row(self.spec, self.dataset_id, frame_index, cfg, self.registry, self.seed, "ok", {}, {}, None).key
+        return self._frame_row(frame_index, cfg).key
 
     def _todo(self, key: str) -> bool:
+        if self.force:
+            return True
         status = self.store.status(key)
         return status is None or (status == "failed" and self.retry_failed)
+
+    def keys(self) -> set[str]:
+        """Keys of every row this run asks for (frame rows and, with poses, sequence rows)."""
+        out = {self._frame_key(i, c) for i in self.frame_indices for c in self.configs}
+        if self.sequence_metrics:
+            out |= {self._sequence_row(c, m, "ok", {}, {}).key for c in self.configs for m in self.sequence_metric_list}
+        return out
 
     def pending(self) -> list[tuple[int, list[CodecConfig]]]:
         tasks = []
@@ -327,7 +356,8 @@ class Runner:
         args = [(self.spec, self.dataset_id, i, cfgs, self.seed, decoded_dir) for i, cfgs in tasks]
         try:
             if self.workers == 1 or len(args) <= 1:
-                state = _WorkerState(self.registry, {self.spec.label: self.dataset})
+                state = self.state
+                state.datasets.setdefault(self.spec.label, self.dataset)
                 for a in args:
                     record(evaluate_frame(state, *a))
             else:
@@ -336,7 +366,7 @@ class Runner:
                     self.workers,
                     mp_context=get_context("spawn"),
                     initializer=_init_worker,
-                    initargs=(threads,),
+                    initargs=(threads, self.metric_params),
                 ) as pool:
                     futures = [pool.submit(_worker_task, a) for a in args]
                     for fut in as_completed(futures):
@@ -351,8 +381,9 @@ class Runner:
     def _run_sequence_metrics(self, summary: RunSummary) -> int:
         stored = 0
         for cfg in self.configs:
-            for name, metric_cls in self.registry.sequence_metrics.items():
-                row = self._sequence_row(cfg, name, "ok", {}, {})
+            for metric in self.sequence_metric_list:
+                name = metric.name
+                row = self._sequence_row(cfg, metric, "ok", {}, {})
                 if not self._todo(row.key):
                     continue
                 try:
@@ -362,13 +393,12 @@ class Runner:
                     seq = SequenceEvaluation(self.dataset, self.frame_indices, decoded, cfg.name, cfg.params, self.seed)
                     watch = Stopwatch()
                     with watch.time("metric_ms"):
-                        values = metric_cls().compute(seq)
-                    extra = {"metric_params": metric_cls.params, **watch.ms}
-                    row = self._sequence_row(cfg, name, "ok", values, extra)
+                        values = metric.compute(seq)
+                    row = self._sequence_row(cfg, metric, "ok", values, dict(watch.ms))
                 except Exception as exc:  # noqa: BLE001
                     row = self._sequence_row(
                         cfg,
-                        name,
+                        metric,
                         "failed",
                         {},
                         {"traceback": traceback.format_exc(limit=6)},
@@ -380,7 +410,7 @@ class Runner:
                 stored += 1
         return stored
 
-    def _sequence_row(self, cfg, part, status, metrics, extra, error=None) -> ResultRow:
+    def _sequence_row(self, cfg, metric: SequenceMetric, status, metrics, extra, error=None) -> ResultRow:
         return ResultRow(
             kind="sequence",
             dataset=self.spec.label,
@@ -394,9 +424,11 @@ class Runner:
             seed=self.seed,
             error=error,
             extra=extra,
-            part=part,
+            part=metric.name,
             versions={**_VERSIONS, "plugin": self.registry.providers.get(("codec", cfg.name), "?")},
             machine=_MACHINE,
+            plugin_version=self.registry.plugin_version("codec", cfg.name),
+            scoring=[metric.signature()],
         )
 
     def _decoded_sequence(self, cfg: CodecConfig) -> tuple[list[np.ndarray], int]:
@@ -404,13 +436,13 @@ class Runner:
         (stored by an older run) are re-encoded here."""
         assert self.decoded_dir is not None
         clouds, failed = [], 0
-        state = _WorkerState(self.registry, {self.spec.label: self.dataset})
+        state = self.state
         for i in self.frame_indices:
-            key = self._frame_key(i, cfg)
-            if self.store.status(key) == "failed":
+            row = self._frame_row(i, cfg)
+            if self.store.status(row.key) == "failed":
                 failed += 1
                 continue
-            path = self.decoded_dir / f"{key}.npy"
+            path = self.decoded_dir / f"{row.evaluation}.npy"
             if not path.exists():
                 frame = self.dataset[i]
                 codec_cls = self.registry.codec(cfg.name)

@@ -19,9 +19,17 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
-__all__ = ["ResultStore", "ResultRow", "result_key", "environment_versions"]
+from lwbench.errors import StoreError
 
-SCHEMA_VERSION = 1
+__all__ = ["ResultStore", "ResultRow", "evaluation_key", "result_key", "environment_versions", "is_results_store"]
+
+# 2: rows carry the codec plugin's package version and the scoring signature (metric names,
+#    versions, parameters and settings), both part of the key.
+SCHEMA_VERSION = 2
+_COLUMNS = (
+    "key", "kind", "dataset", "dataset_id", "frame", "codec", "codec_version", "params", "status", "error",
+    "metrics", "extra", "seed", "lwbench_version", "versions", "machine", "created", "plugin_version", "scoring",
+)
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS results (
     key             TEXT PRIMARY KEY,
@@ -40,22 +48,35 @@ CREATE TABLE IF NOT EXISTS results (
     lwbench_version TEXT NOT NULL,
     versions        TEXT NOT NULL,
     machine         TEXT NOT NULL,
-    created         TEXT NOT NULL
+    created         TEXT NOT NULL,
+    plugin_version  TEXT NOT NULL DEFAULT '',
+    scoring         TEXT NOT NULL DEFAULT '[]'
 );
 CREATE INDEX IF NOT EXISTS results_by_config ON results (dataset_id, codec, params);
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
 """
+# Columns added after schema 1, with the values old rows get.
+_ADDED = {"plugin_version": "TEXT NOT NULL DEFAULT ''", "scoring": "TEXT NOT NULL DEFAULT '[]'"}
 
 
 def canonical_json(obj: Any) -> str:
     return json.dumps(obj, sort_keys=True, separators=(",", ":"), default=str)
 
 
-def result_key(
-    kind: str, dataset_id: str, frame: int, codec: str, codec_version: str, params: dict, seed: int, part: str = ""
+def evaluation_key(
+    dataset_id: str, frame: int, codec: str, codec_version: str, plugin_version: str, params: dict, seed: int
 ) -> str:
-    """The identity of one evaluation: same inputs, same key, so a re-run is a cache hit."""
-    blob = canonical_json([kind, dataset_id, frame, codec, codec_version, params, seed, part])
+    """What was *encoded*: the same data through the same code and parameters gives the same
+    decoded cloud, whatever it is scored with (artifacts such as decoded clouds use this)."""
+    blob = canonical_json([dataset_id, frame, codec, codec_version, plugin_version, params, seed])
+    return hashlib.sha256(blob.encode()).hexdigest()
+
+
+def result_key(evaluation: str, kind: str, part: str, scoring: list) -> str:
+    """The identity of one row: an evaluation scored by a given set of metric versions and
+    parameters. Same inputs, same key, so a re-run is a cache hit; a fixed metric, a changed
+    metric parameter or a new plugin release is a different key and recomputes."""
+    blob = canonical_json([evaluation, kind, part, scoring])
     return hashlib.sha256(blob.encode()).hexdigest()
 
 
@@ -95,12 +116,18 @@ class ResultRow:
     lwbench_version: str = ""
     machine: str = ""
     created: str = ""
+    plugin_version: str = ""
+    scoring: list = field(default_factory=list)
+
+    @property
+    def evaluation(self) -> str:
+        return evaluation_key(
+            self.dataset_id, self.frame, self.codec, self.codec_version, self.plugin_version, self.params, self.seed
+        )
 
     @property
     def key(self) -> str:
-        return result_key(
-            self.kind, self.dataset_id, self.frame, self.codec, self.codec_version, self.params, self.seed, self.part
-        )
+        return result_key(self.evaluation, self.kind, self.part, self.scoring)
 
 
 def environment_versions(extra_modules: Iterable[str] = ()) -> dict[str, str]:
@@ -122,18 +149,104 @@ def machine_description() -> str:
     return f"{platform.node()} {platform.machine()} {os.cpu_count()} cpu {platform.system()}"
 
 
-class ResultStore:
-    """Append-mostly SQLite store. Safe to read while a run writes (WAL)."""
+def _columns(conn: sqlite3.Connection, table: str) -> set[str]:
+    return {r[1] for r in conn.execute(f"PRAGMA table_info({table})")}
 
-    def __init__(self, path: str | Path) -> None:
+
+def _schema_version(conn: sqlite3.Connection) -> int | None:
+    """The store schema of an open SQLite database, or ``None`` if it is not a results store.
+
+    Recognised by its tables, not by being SQLite: a ROS 2 bag (``.db3``) or any other
+    application's database is SQLite too."""
+    try:
+        tables = {r[0] for r in conn.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+    except sqlite3.DatabaseError:
+        return None
+    if not {"results", "meta"} <= tables or not set(_COLUMNS) - set(_ADDED) <= _columns(conn, "results"):
+        return None
+    row = conn.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()
+    try:
+        return int(row[0]) if row else None
+    except ValueError:
+        return None
+
+
+def _connect_readonly(path: Path) -> sqlite3.Connection:
+    return sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True, timeout=30.0)
+
+
+def is_results_store(path: str | Path) -> bool:
+    """Whether ``path`` is an lwbench results store (checked read-only: nothing is written)."""
+    path = Path(path)
+    if not path.is_file():
+        return False
+    with open(path, "rb") as fh:
+        if fh.read(16) != b"SQLite format 3\x00":
+            return False
+    try:
+        conn = _connect_readonly(path)
+    except sqlite3.Error:
+        return False
+    try:
+        return _schema_version(conn) is not None
+    finally:
+        conn.close()
+
+
+class ResultStore:
+    """Append-mostly SQLite store. Safe to read while a run writes (WAL).
+
+    ``readonly=True`` opens an existing store without writing a byte (``lwbench leaderboard``,
+    ``inspect``, reports); otherwise the store is created if missing, and an existing file is
+    written into only if it *is* a results store of a schema this lwbench knows (older schemas
+    are migrated in place by adding columns; old rows keep their keys and simply stop being
+    cache hits).
+    """
+
+    def __init__(self, path: str | Path, *, readonly: bool = False) -> None:
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.conn = sqlite3.connect(str(self.path), timeout=30.0)
-        self.conn.execute("PRAGMA journal_mode=WAL")
-        self.conn.execute("PRAGMA synchronous=NORMAL")
-        with self.conn:
-            self.conn.executescript(_SCHEMA)
-            self.conn.execute("INSERT OR IGNORE INTO meta VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),))
+        self.readonly = readonly
+        if self.path.is_dir():
+            raise StoreError(f"{self.path} is a directory, not a results store file")
+        exists = self.path.is_file() and self.path.stat().st_size > 0
+        if readonly and not exists:
+            raise StoreError(f"no results store at {self.path}")
+        if exists and not is_results_store(self.path):
+            raise StoreError(
+                f"{self.path} is not an lwbench results store"
+                + (" (refusing to write into another file)" if not readonly else "")
+            )
+        try:
+            if readonly:
+                self.conn = _connect_readonly(self.path)
+            else:
+                self.path.parent.mkdir(parents=True, exist_ok=True)
+                self.conn = sqlite3.connect(str(self.path), timeout=30.0)
+                self.conn.execute("PRAGMA journal_mode=WAL")
+                self.conn.execute("PRAGMA synchronous=NORMAL")
+        except (sqlite3.Error, OSError) as exc:
+            raise StoreError(f"cannot open results store {self.path}: {exc}") from None
+        version = _schema_version(self.conn) if exists else SCHEMA_VERSION
+        if version is None or version > SCHEMA_VERSION:
+            self.conn.close()
+            raise StoreError(
+                f"{self.path} has results store schema {version}, newer than this lwbench reads "
+                f"({SCHEMA_VERSION}): upgrade lwbench"
+            )
+        if not readonly:
+            try:
+                with self.conn:
+                    self.conn.executescript(_SCHEMA)
+                    missing = {c: t for c, t in _ADDED.items() if c not in _columns(self.conn, "results")}
+                    for column, decl in missing.items():
+                        self.conn.execute(f"ALTER TABLE results ADD COLUMN {column} {decl}")
+                    self.conn.execute(
+                        "INSERT OR REPLACE INTO meta VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),)
+                    )
+            except sqlite3.Error as exc:
+                self.conn.close()
+                raise StoreError(f"cannot write results store {self.path}: {exc}") from None
+        self._present = _columns(self.conn, "results")
 
     def close(self) -> None:
         self.conn.close()
@@ -155,37 +268,40 @@ class ResultStore:
         """Insert or replace one row in its own transaction."""
         from lwbench import __version__
 
+        if self.readonly:
+            raise StoreError(f"{self.path} was opened read-only")
         created = row.created or datetime.now(timezone.utc).isoformat(timespec="seconds")
         extra = {**row.extra, "part": row.part} if row.part else row.extra
+        values = {
+            "key": row.key,
+            "kind": row.kind,
+            "dataset": row.dataset,
+            "dataset_id": row.dataset_id,
+            "frame": row.frame,
+            "codec": row.codec,
+            "codec_version": row.codec_version,
+            "params": canonical_json(row.params),
+            "status": row.status,
+            "error": row.error,
+            "metrics": json.dumps(_json_safe(row.metrics), sort_keys=True),
+            "extra": canonical_json(extra),
+            "seed": row.seed,
+            "lwbench_version": row.lwbench_version or __version__,
+            "versions": canonical_json(row.versions or environment_versions()),
+            "machine": row.machine or machine_description(),
+            "created": created,
+            "plugin_version": row.plugin_version,
+            "scoring": canonical_json(row.scoring),
+        }
         with self.conn:
             self.conn.execute(
-                "INSERT OR REPLACE INTO results VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
-                (
-                    row.key,
-                    row.kind,
-                    row.dataset,
-                    row.dataset_id,
-                    row.frame,
-                    row.codec,
-                    row.codec_version,
-                    canonical_json(row.params),
-                    row.status,
-                    row.error,
-                    json.dumps(_json_safe(row.metrics), sort_keys=True),
-                    canonical_json(extra),
-                    row.seed,
-                    row.lwbench_version or __version__,
-                    canonical_json(row.versions or environment_versions()),
-                    row.machine or machine_description(),
-                    created,
-                ),
+                f"INSERT OR REPLACE INTO results ({', '.join(_COLUMNS)}) VALUES ({', '.join('?' * len(_COLUMNS))})",
+                [values[c] for c in _COLUMNS],
             )
 
     def rows(self, *, dataset: str | None = None, kind: str | None = None) -> Iterator[ResultRow]:
-        sql = (
-            "SELECT kind, dataset, dataset_id, frame, codec, codec_version, params, status, "
-            "metrics, seed, error, extra, versions, lwbench_version, machine, created FROM results"
-        )
+        cols = [c if c in self._present else f"{_DEFAULTS[c]} AS {c}" for c in _COLUMNS]
+        sql = f"SELECT {', '.join(cols)} FROM results"
         clauses, args = [], []
         if dataset is not None:
             clauses.append("(dataset = ? OR dataset_id = ? OR dataset LIKE ?)")
@@ -197,26 +313,32 @@ class ResultStore:
             sql += " WHERE " + " AND ".join(clauses)
         sql += " ORDER BY dataset, codec, params, frame"
         for r in self.conn.execute(sql, args):
-            extra = json.loads(r[11])
+            v = dict(zip(_COLUMNS, r, strict=True))
+            extra = json.loads(v["extra"])
             yield ResultRow(
-                kind=r[0],
-                dataset=r[1],
-                dataset_id=r[2],
-                frame=r[3],
-                codec=r[4],
-                codec_version=r[5],
-                params=json.loads(r[6]),
-                status=r[7],
-                metrics=_from_json(json.loads(r[8])),
-                seed=r[9],
-                error=r[10],
+                kind=v["kind"],
+                dataset=v["dataset"],
+                dataset_id=v["dataset_id"],
+                frame=v["frame"],
+                codec=v["codec"],
+                codec_version=v["codec_version"],
+                params=json.loads(v["params"]),
+                status=v["status"],
+                metrics=_from_json(json.loads(v["metrics"])),
+                seed=v["seed"],
+                error=v["error"],
                 extra=extra,
                 part=extra.get("part", ""),
-                versions=json.loads(r[12]),
-                lwbench_version=r[13],
-                machine=r[14],
-                created=r[15],
+                versions=json.loads(v["versions"]),
+                lwbench_version=v["lwbench_version"],
+                machine=v["machine"],
+                created=v["created"],
+                plugin_version=v["plugin_version"],
+                scoring=json.loads(v["scoring"]),
             )
 
     def count(self) -> int:
         return self.conn.execute("SELECT COUNT(*) FROM results").fetchone()[0]
+
+
+_DEFAULTS = {"plugin_version": "''", "scoring": "'[]'"}

@@ -48,13 +48,15 @@ def test_run_on_a_real_sample_prints_every_core_metric_column(store):
 
 def test_leaderboard_json_contract(store):
     data = json.loads(invoke("leaderboard", "--store", str(store), "--format", "json", "--sort", "ratio").stdout)
-    assert [d["codec"] for d in data] == ["random", "random", "raw"]
+    # Both random configurations keep < 90 % of the returns: flagged, so they rank after raw.
+    assert [d["codec"] for d in data] == ["raw", "random", "random"]
+    assert data[0]["flags"] == [] and data[1]["flags"] == data[2]["flags"] == ["low_coverage"]
     for d in data:
-        for key in ("dataset", "codec", "params", "frames", "failures", "bytes", "bytes_median", "bytes_p95",
-                    "range_rmsd", "coverage", "chamfer_p95"):
+        for key in ("dataset", "codec", "params", "frames", "failures", "flags", "bytes", "bytes_median",
+                    "bytes_p95", "range_rmsd", "coverage", "chamfer_p95"):
             assert key in d
-    assert data[0]["params"]["ratio"] == 0.1 and data[0]["ratio"] > data[1]["ratio"]
-    assert data[2]["d1_psnr"] is None  # +inf for lossless is not valid JSON
+    assert data[1]["params"]["ratio"] == 0.1 and data[1]["ratio"] > data[2]["ratio"]
+    assert data[0]["d1_psnr"] is None  # +inf for lossless is not valid JSON
 
 
 def test_leaderboard_csv(store):

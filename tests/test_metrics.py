@@ -6,9 +6,11 @@ import math
 
 import numpy as np
 import pytest
-from lwbench_metrics import GeometryMetric, RangeImageMetric, RuntimeMetric, SizeMetric
+from lwbench_metrics import GeometryMetric, RangeMetric, RuntimeMetric, SizeMetric
 
-from lwbench import CodecKind, Evaluation, Frame
+from lwbench import CodecKind, Evaluation, Frame, get_sensor
+from lwbench.registry import get_registry
+from lwbench.testing import room_scan
 
 
 def _ev(frame: Frame, decoded: np.ndarray, payload: bytes = b"x" * 100, **kw) -> Evaluation:
@@ -33,7 +35,7 @@ def test_range_rmsd_coverage_and_false_returns(tiny_sensor):
     p = np.array([dirs[c] * 10.0 for c in cells_p])
     # Decoded: 3 of them at 10.3, 9.6, 10.0 m and one return in an empty cell (3,5).
     q = np.array([dirs[0, 0] * 10.3, dirs[0, 1] * 9.6, dirs[1, 0] * 10.0, dirs[3, 5] * 4.0])
-    m = RangeImageMetric().compute(_ev(Frame(p.astype(np.float32), tiny_sensor), q))
+    m = RangeMetric().compute(_ev(Frame(p.astype(np.float32), tiny_sensor), q))
     assert m["range_rmsd"] == pytest.approx(math.sqrt((0.3**2 + 0.4**2 + 0) / 3), rel=1e-5)
     assert m["coverage"] == pytest.approx(3 / 4)
     assert m["false_returns"] == pytest.approx(1 / 4)
@@ -41,8 +43,87 @@ def test_range_rmsd_coverage_and_false_returns(tiny_sensor):
 
 def test_range_metrics_of_an_empty_decode_are_undefined_not_nan(tiny_sensor):
     p = tiny_sensor.ray_directions()[0, :3] * 5.0
-    m = RangeImageMetric().compute(_ev(Frame(p.astype(np.float32), tiny_sensor), np.zeros((0, 3))))
+    m = RangeMetric().compute(_ev(Frame(p.astype(np.float32), tiny_sensor), np.zeros((0, 3))))
     assert m == {"range_rmsd": None, "coverage": 0.0, "false_returns": None}
+
+
+def _rotate_z(points: np.ndarray, angle: float) -> np.ndarray:
+    c, s = math.cos(angle), math.sin(angle)
+    return (np.asarray(points, np.float64) @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]).T).astype(np.float32)
+
+
+def _lossy(frame: Frame, seed: int = 1) -> np.ndarray:
+    """A decoded cloud with every kind of damage: range noise, 20 % dropped, 5 % outliers."""
+    rng = np.random.default_rng(seed)
+    p = frame.points.astype(np.float64)
+    keep = rng.random(len(p)) > 0.2
+    q = p[keep] * (1 + rng.normal(0, 0.01, (keep.sum(), 1)))
+    outliers = rng.uniform(-2, 2, (len(p) // 20, 3))
+    return np.concatenate([q, outliers]).astype(np.float32)
+
+
+def _grid_decode(frame: Frame) -> np.ndarray:
+    """What a range-image codec does: one return per cell, put back on the cell's centre ray."""
+    return frame.sensor.unproject(frame.sensor.project(frame.points).ranges)
+
+
+@pytest.mark.parametrize("decode", [_lossy, _grid_decode], ids=["lossy", "grid"])
+@pytest.mark.parametrize("fraction", [0.1, 0.25, 0.5, 0.77, 13.5])
+def test_rotating_both_clouds_together_changes_nothing(decode, fraction):
+    frame = room_scan(get_sensor("vlp16"), seed=3)
+    q = decode(frame)
+    base = RangeMetric().compute(_ev(frame, q))
+    angle = fraction * frame.sensor.azimuth_step_rad
+    turned = Frame(_rotate_z(frame.points, angle), frame.sensor)
+    moved = RangeMetric().compute(_ev(turned, _rotate_z(q, angle)))
+    for key in ("range_rmsd", "coverage", "false_returns"):
+        assert moved[key] == pytest.approx(base[key], rel=0.01, abs=1e-4), key
+
+
+@pytest.mark.parametrize("fraction", [0.0, 0.25, 0.5, 0.75])
+def test_a_grid_codec_is_scored_the_same_wherever_the_scan_sits_on_its_grid(fraction):
+    # Rotate the *input* by a fraction of a cell: a grid codec's output moves relative to the
+    # returns, but it still has one return per direction window; coverage must not see cell edges.
+    sensor = get_sensor("vlp16")
+    frame = room_scan(sensor, seed=5)
+    turned = Frame(_rotate_z(frame.points, fraction * sensor.azimuth_step_rad), sensor)
+    m = RangeMetric().compute(_ev(turned, _grid_decode(turned)))
+    assert m["coverage"] > 0.97 and m["false_returns"] < 0.01
+    assert m["range_rmsd"] < 0.05
+
+
+def test_every_selection_codec_scores_range_rmsd_exactly_zero():
+    frame = room_scan(get_sensor("vlp16"), seed=7, dropout=0.05)
+    reg = get_registry()
+    selectors = [c for c in reg.codecs.values() if c.kind.value == "selection"]
+    assert len(selectors) >= 5
+    for cls in selectors:
+        codec = cls()
+        q = codec.decode(codec.encode(frame))
+        m = RangeMetric().compute(_ev(frame, q))
+        assert m["range_rmsd"] == 0.0, cls.name
+        assert m["false_returns"] == 0.0, cls.name
+        assert m["coverage"] == pytest.approx(len(q) / len(frame), abs=1e-9), cls.name
+
+
+def test_dropping_half_the_returns_covers_half():
+    frame = room_scan(get_sensor("hdl64e"), seed=2)
+    q = frame.points[::2]
+    m = RangeMetric().compute(_ev(frame, q))
+    assert m["coverage"] == pytest.approx(0.5, abs=0.005)
+    assert m["range_rmsd"] == 0.0 and m["false_returns"] == 0.0
+
+
+def test_tolerance_is_a_parameter_in_units_of_the_spacing(tiny_sensor):
+    dirs = tiny_sensor.ray_directions()
+    p = np.array([dirs[1, 2] * 10.0])
+    # Decoded: the same beam, 0.3 of an azimuth step away.
+    az = -math.pi + 2.8 * tiny_sensor.azimuth_step_rad
+    el = tiny_sensor.elevations_rad[1]
+    q = np.array([[math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)]]) * 10.0
+    frame = Frame(p.astype(np.float32), tiny_sensor)
+    assert RangeMetric().compute(_ev(frame, q))["coverage"] == 1.0
+    assert RangeMetric(tolerance=0.2).compute(_ev(frame, q))["coverage"] == 0.0
 
 
 def test_chamfer_hausdorff_and_d1_psnr_by_hand(tiny_sensor):

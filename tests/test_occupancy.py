@@ -29,7 +29,6 @@ def _originals(ds):
 def test_ids_and_resolutions():
     assert OCC_IDS <= set(OccupancyMetric.ids)
     assert {"occ_iou_005", "occ_precision_005", "occ_recall_005"} <= set(OccupancyMetric.ids)
-    assert OccupancyMetric.params["resolutions"][0] == 0.2
 
 
 def test_identical_clouds_score_one(street):

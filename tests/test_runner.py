@@ -87,11 +87,18 @@ def test_rows_for_every_frame_and_config_with_all_core_metrics(registry, tmp_pat
         for r in rows:
             assert ids <= {k for k, v in r.metrics.items() if v is not None}, r.codec
             assert r.versions["numpy"] and r.machine and r.seed == 0
-        entries = build_leaderboard(store, sort="ratio")
+        entries = build_leaderboard(store, sort="ratio", flagged_last=False)
         assert [e.codec for e in entries] == ["random", "random", "raw"]
         assert entries[0].value("ratio") > entries[1].value("ratio") > 1
         raw = entries[2]
         assert raw.value("range_rmsd") == 0 and raw.value("coverage") == 1
+        # The quality guard: keeping 10 % or 50 % of the returns is below the coverage floor,
+        # so by default those configurations are flagged and rank after the unflagged raw.
+        guarded = build_leaderboard(store, sort="ratio")
+        assert [e.codec for e in guarded] == ["raw", "random", "random"]
+        assert guarded[0].flags == [] and all(e.flags == ["low_coverage"] for e in guarded[1:])
+        loose = build_leaderboard(store, sort="ratio", min_coverage=0.05)
+        assert [e.codec for e in loose] == ["random", "random", "raw"]
 
 
 def test_a_codec_that_raises_is_recorded_and_the_run_goes_on(registry, tmp_path):
@@ -178,3 +185,42 @@ def test_parallel_workers_give_the_same_rows_as_one_process(tmp_path):
             assert Runner(store, spec, configs, workers=workers, registry=reg).run().evaluated == 4
             out.append({r.frame: r.metrics["chamfer"] for r in store.rows()})
     assert out[0] == out[1]
+
+
+def test_a_changed_metric_parameter_recomputes_and_is_never_averaged_in(registry, tmp_path):
+    with ResultStore(tmp_path / "r.sqlite") as store:
+        first = _runner(registry, store, [("counting", {})]).run()
+        assert first.evaluated == 4
+        CALLS.clear()
+        # Same codec, same frames, but scored with another PSNR peak: a different key.
+        again = _runner(registry, store, [("counting", {})], metric_params={"geometry": {"peak": 59.7}}).run()
+        assert again.evaluated == 4 and again.skipped == 0 and CALLS
+        assert store.count() == 8
+        (entry,) = [e for e in build_leaderboard(store) if e.codec == "counting"]
+        # Only the newest scoring counts; the rows scored the old way are reported, not mixed in.
+        assert entry.frames == 4 and entry.stale == 4
+
+
+def test_a_new_plugin_release_is_not_served_its_predecessors_rows(registry, tmp_path):
+    with ResultStore(tmp_path / "r.sqlite") as store:
+        assert _runner(registry, store, [("counting", {})]).run().evaluated == 4
+        assert _runner(registry, store, [("counting", {})]).run().evaluated == 0
+        registry.plugin_versions[("codec", "counting")] = "test-plugin==0.0.2"
+        assert _runner(registry, store, [("counting", {})]).run().evaluated == 4
+
+
+def test_force_recomputes_on_purpose(registry, tmp_path):
+    with ResultStore(tmp_path / "r.sqlite") as store:
+        _runner(registry, store, [("counting", {})]).run()
+        CALLS.clear()
+        forced = _runner(registry, store, [("counting", {})], force=True).run()
+        assert forced.evaluated == 4 and sorted(set(CALLS)) == [0, 1, 2, 3] and store.count() == 4
+
+
+def test_unknown_metric_parameters_are_refused(registry):
+    from lwbench.errors import ParameterError, PluginError
+
+    with pytest.raises(PluginError, match="unknown metric"):
+        registry.check_metric_params({"nope": {"x": "1"}})
+    with pytest.raises(ParameterError, match="unknown parameter"):
+        registry.check_metric_params({"geometry": {"peek": "1"}})

@@ -12,7 +12,7 @@ import time
 
 import numpy as np
 import pytest
-from lwbench_metrics import GeometryMetric, RangeImageMetric, SizeMetric
+from lwbench_metrics import GeometryMetric, RangeMetric, SizeMetric
 
 from lwbench import CodecKind, Evaluation
 from lwbench.datasets import KittiDataset
@@ -34,7 +34,7 @@ def decoded(frame):
     return (frame.points + rng.normal(0, 0.01, frame.points.shape)).astype(np.float32)
 
 
-@pytest.mark.parametrize("metric_cls", [SizeMetric, RangeImageMetric, GeometryMetric])
+@pytest.mark.parametrize("metric_cls", [SizeMetric, RangeMetric, GeometryMetric])
 def test_metric_time_per_frame(benchmark, metric_cls, frame, decoded):
     """Cold cache each round: the per-frame cost when one codec is evaluated."""
 

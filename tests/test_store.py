@@ -1,0 +1,105 @@
+"""The results store: read-only opening, recognition by schema, migration, refusal to write
+into files that are not stores."""
+
+from __future__ import annotations
+
+import hashlib
+import sqlite3
+
+import pytest
+
+from lwbench.errors import StoreError
+from lwbench.store import SCHEMA_VERSION, ResultRow, ResultStore, is_results_store
+
+
+def _row(frame: int = 0, **kw) -> ResultRow:
+    return ResultRow("frame", "sim", "sim:abc", frame, "raw", "1", {}, "ok", {"bytes": 10.0 + frame}, 0, **kw)
+
+
+def _digest(path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def test_a_store_round_trips_rows_with_their_scoring(tmp_path):
+    with ResultStore(tmp_path / "r.sqlite") as store:
+        store.put(_row(plugin_version="lwbench==0.1.0", scoring=[["size", "1", {}, {}]]))
+    with ResultStore(tmp_path / "r.sqlite", readonly=True) as store:
+        (row,) = store.rows()
+    assert row.plugin_version == "lwbench==0.1.0" and row.scoring == [["size", "1", {}, {}]]
+    assert row.key == _row(plugin_version="lwbench==0.1.0", scoring=[["size", "1", {}, {}]]).key
+
+
+def test_reading_a_store_writes_nothing(tmp_path):
+    path = tmp_path / "r.sqlite"
+    with ResultStore(path) as store:
+        store.put(_row())
+    before = _digest(path)
+    with ResultStore(path, readonly=True) as store:
+        assert len(list(store.rows())) == 1
+        with pytest.raises(StoreError, match="read-only"):
+            store.put(_row(1))
+    assert _digest(path) == before
+
+
+def test_another_sqlite_file_is_not_a_store_and_is_left_alone(tmp_path):
+    # A ROS 2 bag is SQLite too (.db3): it must never be mistaken for a store or written into.
+    bag = tmp_path / "rosbag.db3"
+    conn = sqlite3.connect(bag)
+    conn.execute("CREATE TABLE messages (id INTEGER PRIMARY KEY, topic_id INTEGER, data BLOB)")
+    conn.commit()
+    conn.close()
+    before = _digest(bag)
+    assert not is_results_store(bag)
+    for readonly in (True, False):
+        with pytest.raises(StoreError, match="not an lwbench results store"):
+            ResultStore(bag, readonly=readonly)
+    assert _digest(bag) == before
+
+
+def test_non_sqlite_files_and_folders_are_refused_clearly(tmp_path):
+    (tmp_path / "notes.txt").write_text("hello")
+    with pytest.raises(StoreError, match="not an lwbench results store"):
+        ResultStore(tmp_path / "notes.txt")
+    with pytest.raises(StoreError, match="directory"):
+        ResultStore(tmp_path)
+    with pytest.raises(StoreError, match="no results store"):
+        ResultStore(tmp_path / "missing.sqlite", readonly=True)
+
+
+def test_a_schema_1_store_is_read_and_migrated(tmp_path):
+    path = tmp_path / "old.sqlite"
+    conn = sqlite3.connect(path)
+    conn.executescript(
+        """
+        CREATE TABLE results (key TEXT PRIMARY KEY, kind TEXT, dataset TEXT, dataset_id TEXT, frame INTEGER,
+            codec TEXT, codec_version TEXT, params TEXT, status TEXT, error TEXT, metrics TEXT, extra TEXT,
+            seed INTEGER, lwbench_version TEXT, versions TEXT, machine TEXT, created TEXT);
+        CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+        INSERT INTO meta VALUES ('schema_version', '1');
+        INSERT INTO results VALUES ('k1', 'frame', 'sim', 'sim:abc', 0, 'raw', '1', '{}', 'ok', NULL,
+            '{"bytes": 5.0}', '{}', 0, '0.1.0', '{}', 'host', '2026-11-01T00:00:00+00:00');
+        """
+    )
+    conn.commit()
+    conn.close()
+    with ResultStore(path, readonly=True) as store:
+        (row,) = store.rows()
+        assert row.metrics == {"bytes": 5.0} and row.plugin_version == "" and row.scoring == []
+    with ResultStore(path) as store:  # opening for writing migrates in place
+        store.put(_row(3))
+        assert store.count() == 2
+    conn = sqlite3.connect(path)
+    assert conn.execute("SELECT value FROM meta WHERE key='schema_version'").fetchone()[0] == str(SCHEMA_VERSION)
+    conn.close()
+
+
+def test_a_store_from_a_newer_lwbench_is_refused(tmp_path):
+    path = tmp_path / "new.sqlite"
+    with ResultStore(path) as store:
+        store.put(_row())
+    conn = sqlite3.connect(path)
+    conn.execute("UPDATE meta SET value = '99' WHERE key = 'schema_version'")
+    conn.commit()
+    conn.close()
+    with pytest.raises(StoreError, match="newer"):
+        ResultStore(path, readonly=True)
