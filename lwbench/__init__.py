@@ -4,24 +4,30 @@ This module is the public API. Plugins (including the built-in ones under ``plug
 import only from here.
 """
 
-from lwbench.codec import (
-    BUDGET_PARAMS,
-    Codec,
-    CodecKind,
-    RepresentationCodec,
-    SelectionCodec,
-    SelectionError,
-)
+from lwbench.codec import BUDGET_PARAMS, Codec, CodecKind, RepresentationCodec, SelectionCodec
 from lwbench.dataset import Dataset
 from lwbench.deps import import_open3d
 from lwbench.device import DEVICE_PARAM, resolve_device
+from lwbench.errors import (
+    DataFormatError,
+    DecodeError,
+    InvalidFrameError,
+    LwbenchError,
+    MissingDependencyError,
+    ParameterError,
+    PayloadError,
+    PluginError,
+    SelectionError,
+    StoreError,
+)
+from lwbench.frame import Frame
 from lwbench.hookspecs import hookimpl
 from lwbench.io import SENSOR_FILE, read_kitti_bin, read_point_file, write_kitti_sequence
-from lwbench.metric import Evaluation, FrameMetric, SequenceEvaluation, SequenceMetric
-from lwbench.payload import Payload, PayloadError
+from lwbench.metric import HIGHER, LOWER, Evaluation, FrameMetric, MetricId, SequenceEvaluation, SequenceMetric
+from lwbench.params import Param
+from lwbench.payload import Payload
 from lwbench.points import POINT_ENCODINGS, pack_points, unpack_points
 from lwbench.sensor import SENSOR_PRESETS, RangeImage, SensorModel, get_sensor, register_sensor
-from lwbench.types import Frame, InvalidFrameError, LwbenchError, Param, ParameterError
 
 __version__ = "0.1.0"
 
@@ -30,17 +36,24 @@ __all__ = [
     "Codec",
     "CodecKind",
     "DEVICE_PARAM",
+    "DataFormatError",
     "Dataset",
+    "DecodeError",
     "Evaluation",
     "Frame",
     "FrameMetric",
+    "HIGHER",
+    "LOWER",
+    "MetricId",
     "InvalidFrameError",
     "LwbenchError",
+    "MissingDependencyError",
     "POINT_ENCODINGS",
     "Param",
     "ParameterError",
     "Payload",
     "PayloadError",
+    "PluginError",
     "RangeImage",
     "RepresentationCodec",
     "SENSOR_FILE",
@@ -50,6 +63,7 @@ __all__ = [
     "SensorModel",
     "SequenceEvaluation",
     "SequenceMetric",
+    "StoreError",
     "get_sensor",
     "hookimpl",
     "import_open3d",

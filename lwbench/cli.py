@@ -1,7 +1,9 @@
 """The ``lwbench`` command line (typer + rich). Forms and metric ids follow DESIGN.md.
 
 User errors (unknown codec, bad parameter, unreadable file) print one clear line and exit 2;
-a traceback means a bug in lwbench or a plugin.
+a traceback means a bug in lwbench or a plugin. Commands only parse words and print: planning
+a run is :func:`lwbench.run.plan_run`, running it :class:`lwbench.run.Runner`, the board
+:func:`lwbench.leaderboard.build_leaderboard`.
 """
 
 from __future__ import annotations
@@ -13,7 +15,15 @@ from typing import Annotated
 
 import typer
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
+from rich.markup import escape
 from rich.table import Table
 
 from lwbench.errors import LwbenchError
@@ -27,22 +37,16 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
 )
 # Off a terminal (CI logs, pipes) rich would wrap tables at 80 columns; leaderboards are wide.
-console = Console(width=None if sys.stdout.isatty() else 180)
+console = Console(width=None if sys.stdout.isatty() else 200)
 err_console = Console(stderr=True, soft_wrap=True)
 
 DEFAULT_STORE = Path("lwbench-results/results.sqlite")
-DEFAULT_DATASET = "sim"
-# The main job: every built-in codec whose defaults encode a scan in well under a second on 2
-# cores, so `lwbench run` alone finishes in about a minute. gmm is left out: its default fit
-# (K=200 full covariances by EM on every point) takes 10-70 s per scan on 2 cores; ask for it with
-# --codec gmm (see docs/gmm.md).
-DEFAULT_CODECS = ("raw", "random", "voxel", "draco", "rangeimage", "vsgp", "harris3d", "iss", "sift3d")
 
 _state = {"strict": False}
 
 
 def _fail(message: str) -> None:
-    err_console.print(f"[bold red]error:[/] {message}")
+    err_console.print(f"[bold red]error:[/] {message}", markup=True, highlight=False)
     raise typer.Exit(2)
 
 
@@ -62,21 +66,22 @@ def _registry() -> Registry:
     return reg
 
 
+def _version(value: bool) -> None:
+    if value:
+        from lwbench import __version__
+
+        print(f"lwbench {__version__}")
+        raise typer.Exit()
+
+
 @app.callback()
 def _global_options(
     strict: Annotated[bool, typer.Option("--strict", help="Fail if any plugin fails to load (for CI).")] = False,
+    version: Annotated[
+        bool, typer.Option("--version", callback=_version, is_eager=True, help="Print the version and exit.")
+    ] = False,
 ) -> None:
     _state["strict"] = strict
-
-
-def _parse_kv(items: list[str], what: str) -> dict[str, str]:
-    out = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep or not key.strip():
-            _fail(f"{what} must look like KEY=VALUE, got {item!r}")
-        out[key.strip()] = value.strip()
-    return out
 
 
 # ------------------------------------------------------------------------------------- list
@@ -85,6 +90,8 @@ def list_plugins(
     as_json: Annotated[bool, typer.Option("--json", help="Machine-readable output.")] = False,
 ) -> None:
     """Codecs, datasets and metrics with their parameters and the package providing each."""
+    from lwbench.metric import as_metric_id
+
     reg = _registry()
     data = {
         "codecs": [{**c.describe(), "provider": reg.providers[("codec", n)]} for n, c in sorted(reg.codecs.items())],
@@ -95,7 +102,10 @@ def list_plugins(
             {
                 "name": n,
                 "kind": kind,
-                "ids": list(m.ids),
+                "ids": [str(i) for i in m.ids],
+                "id_info": [as_metric_id(i).describe() for i in m.ids],
+                "version": m.version,
+                "params": [p.describe() for p in m.params],
                 "description": m.description,
                 "provider": reg.providers[("metric", n)],
             }
@@ -136,39 +146,11 @@ def list_plugins(
 
 
 # -------------------------------------------------------------------------------------- run
-def _dataset_spec(reg: Registry, dataset: str, params: dict[str, str]):
-    from lwbench.runner import DatasetSpec
-
-    path = Path(dataset).expanduser()
-    if dataset not in reg.datasets and (path.exists() or "/" in dataset or path.suffix):
-        if not path.exists():
-            _fail(f"dataset path {dataset} does not exist")
-        for name, cls in reg.datasets.items():
-            if cls.sniff(path):
-                return DatasetSpec(name, {**params, "path": str(path.resolve())})
-        _fail(f"no installed loader recognises {dataset} (KITTI folder, PCD/PLY folder or scan file)")
-    reg.dataset(dataset)  # raises a clear error for an unknown name
-    return DatasetSpec(dataset, params)
-
-
-def _codec_values(reg: Registry, codecs: list[str], params: list[str]) -> dict[str, dict[str, list[str]]]:
-    values: dict[str, dict[str, list[str]]] = {c: {} for c in codecs}
-    for item in params:
-        target, sep, value = item.partition("=")
-        codec, dot, key = target.partition(".")
-        if not sep or not dot:
-            _fail(f"--param must look like CODEC.KEY=VALUE[,VALUE...], got {item!r}")
-        if codec not in values:
-            _fail(f"--param {item!r} is for codec {codec!r}, which is not in this run's --codec list")
-        values[codec][key] = [v for v in value.split(",")]
-    for c in codecs:
-        reg.codec(c)
-    return values
-
-
 @app.command()
 def run(
-    dataset: Annotated[str, typer.Option(help="Registered dataset name or a path (auto-detected).")] = DEFAULT_DATASET,
+    dataset: Annotated[
+        str | None, typer.Option(help="Registered dataset name or a path (auto-detected). Default: sim.")
+    ] = None,
     dataset_param: Annotated[list[str], typer.Option("--dataset-param", help="KEY=VALUE for the dataset.")] = [],  # noqa: B006
     codec: Annotated[list[str], typer.Option("--codec", help="Codec to run (repeat). Default: the main set.")] = [],  # noqa: B006
     param: Annotated[list[str], typer.Option("--param", help="CODEC.KEY=V1[,V2...]: sweep values.")] = [],  # noqa: B006
@@ -183,117 +165,147 @@ def run(
         list[str], typer.Option("--metric-param", help="METRIC.KEY=VALUE, e.g. geometry.peak=59.70 (part of the key).")
     ] = [],  # noqa: B006
     sort: Annotated[str, typer.Option(help="Metric to sort the printed leaderboard by.")] = "ratio",
+    columns: Annotated[str | None, typer.Option(help="Comma-separated metric ids to show.")] = None,
     min_coverage: Annotated[
         float, typer.Option(help="Flag configurations whose coverage is below this.", min=0, max=1)
     ] = DEFAULT_MIN_COVERAGE,
 ) -> None:
     """Evaluate codecs on a dataset; every result lands in the store; print the leaderboard."""
     from lwbench.leaderboard import build_leaderboard
-    from lwbench.runner import Runner, expand_codec_configs
+    from lwbench.run import Runner, parse_assignments, parse_sweeps, plan_run
     from lwbench.store import ResultStore
 
     reg = _registry()
     try:
-        ds_params = _parse_kv(dataset_param, "--dataset-param")
-        spec = _dataset_spec(reg, dataset, ds_params)
-        if "seed" in {p.name for p in reg.dataset(spec.name).params} and "seed" not in spec.params:
-            spec = type(spec)(spec.name, {**spec.params, "seed": str(seed)})
-        codecs = list(dict.fromkeys(codec)) or [c for c in DEFAULT_CODECS if c in reg.codecs]
-        values = _codec_values(reg, codecs, param)
-        configs = [cfg for c in codecs for cfg in expand_codec_configs(reg.codec(c), values[c], seed)]
-        metric_params = _metric_params(reg, metric_param)
+        codecs = list(dict.fromkeys(codec))
+        owners = codecs or sorted(n for n, c in reg.codecs.items() if c.in_default_run)
+        plan = plan_run(
+            reg,
+            dataset=dataset,
+            dataset_params=parse_assignments(dataset_param, "--dataset-param"),
+            codecs=codecs,
+            sweeps=parse_sweeps(param, owners, "--param"),
+            frames=frames,
+            seed=seed,
+            metric_params=parse_sweeps_single(metric_param, reg),
+            sequence_metrics=sequence_metrics,
+        )
+        info = reg.metric_info()
+        wanted = _columns(columns, info, reg)
         with ResultStore(store) as results:
-            runner = Runner(
-                results,
-                spec,
-                configs,
-                frames=frames,
-                seed=seed,
-                workers=workers,
-                sequence_metrics=sequence_metrics,
-                retry_failed=retry_failed,
-                force=force,
-                metric_params=metric_params,
-                registry=reg,
-            )
-            n_total = len(runner.frame_indices) * len(configs)
+            runner = Runner(results, plan, registry=reg, workers=workers, retry_failed=retry_failed, force=force)
+            n_total = len(runner.frame_indices) * len(runner.configs)
             console.print(
-                f"[bold]lwbench run[/]: {spec.label} · {len(runner.frame_indices)} frame(s) · "
-                f"{len(configs)} codec configuration(s) · store {store}"
+                f"[bold]lwbench run[/]: {plan.dataset.label} · {len(runner.frame_indices)} frame(s) · "
+                f"{len(runner.configs)} codec configuration(s) · store {store}"
             )
-            with Progress(
-                TextColumn("[progress.description]{task.description}"),
-                BarColumn(),
-                MofNCompleteColumn(),
-                TimeElapsedColumn(),
-                console=console,
-                transient=False,
-                disable=not sys.stdout.isatty(),
-            ) as progress:
-                task = progress.add_task("evaluating", total=None)
-
-                def on_progress(done: int, total: int, row) -> None:
-                    progress.update(
-                        task,
-                        total=total,
-                        completed=done,
-                        description=f"{row.codec} frame {row.frame}" if row else "evaluating",
-                    )
-
-                summary = runner.run(on_progress)
+            summary = _run_with_progress(runner)
             console.print(
                 f"evaluated {summary.evaluated}, cached {summary.skipped} of {n_total}; "
                 f"{summary.failed} failure(s); {summary.sequence_rows} sequence row(s)"
             )
             for f in summary.failures[:10]:
-                err_console.print(f"[red]failed:[/] {f}")
+                err_console.print(f"[red]failed:[/] {f}", highlight=False)
             if summary.interrupted:
                 err_console.print(
                     "[yellow]interrupted:[/] finished rows are stored; run the same command again to resume"
                 )
                 raise typer.Exit(130)
-            entries = build_leaderboard(
-                results, sort=sort, defaults=_defaults(reg), keys=runner.keys(), min_coverage=min_coverage
-            )
-            console.print(f"dataset: {spec.label}")
-            _print_table(entries, sort)
+            entries = build_leaderboard(results, sort=sort, info=info, keys=runner.keys(), min_coverage=min_coverage)
+            console.print(f"dataset: {plan.dataset.label}")
+            _print_table(entries, sort, wanted, info)
     except LwbenchError as exc:
         _fail(str(exc))
 
 
-def _metric_params(reg: Registry, items: list[str]) -> dict[str, dict]:
-    """``METRIC.KEY=VALUE`` options -> {metric: {key: value}}, checked against the registry."""
-    out: dict[str, dict] = {}
-    for item in items:
-        target, sep, value = item.partition("=")
-        metric, dot, key = target.partition(".")
-        if not sep or not dot:
-            _fail(f"--metric-param must look like METRIC.KEY=VALUE, got {item!r}")
-        out.setdefault(metric.strip(), {})[key.strip()] = value.strip()
-    reg.check_metric_params(out)
+def parse_sweeps_single(items: list[str], reg: Registry) -> dict[str, dict[str, str]]:
+    """``--metric-param METRIC.KEY=VALUE`` words (one value each)."""
+    from lwbench.run import parse_sweeps
+
+    metrics = sorted({*reg.frame_metrics, *reg.sequence_metrics})
+    sweeps = parse_sweeps(items, metrics, "--metric-param", "metric")
+    out: dict[str, dict[str, str]] = {}
+    for metric, values in sweeps.items():
+        for key, vals in values.items():
+            if len(vals) != 1:
+                raise LwbenchError(f"--metric-param {metric}.{key}: one value only (metrics are not swept)")
+            out.setdefault(metric, {})[key] = vals[0]
     return out
 
 
-def _defaults(reg: Registry) -> dict[str, dict]:
-    return {name: {p.name: p.default for p in cls.all_params()} for name, cls in reg.codecs.items()}
+def _run_with_progress(runner):
+    with Progress(
+        TextColumn("[progress.description]{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        TextColumn("eta"),
+        TimeRemainingColumn(),
+        console=console,
+        transient=False,
+        disable=not sys.stdout.isatty(),
+    ) as progress:
+        tasks: dict[str, int] = {}
+
+        def on_progress(event) -> None:
+            if event.phase not in tasks:
+                title = "frames" if event.phase == "frames" else "sequence metrics"
+                tasks[event.phase] = progress.add_task(title, total=event.total)
+            row = event.row
+            what = f"{row.codec} frame {row.frame}" if row.kind == "frame" else f"{row.codec} · {row.part}"
+            progress.update(tasks[event.phase], total=event.total, completed=event.done, description=what)
+
+        return runner.run(on_progress)
 
 
-def _print_table(entries, sort: str) -> None:
-    from lwbench.leaderboard import DEFAULT_COLUMNS, present_columns, table_rows
+def _columns(columns: str | None, info, reg: Registry) -> tuple[str, ...] | None:
+    from lwbench.leaderboard import check_metric_ids
 
-    cols = present_columns(entries, DEFAULT_COLUMNS)
-    if sort not in cols and any(e.value(sort) is not None for e in entries):
-        cols = (sort, *cols)
-    header, rows = table_rows(entries, cols)
-    table = Table(title=f"Leaderboard (mean over frames; sorted by {sort})", title_justify="left")
-    for h in header:
-        table.add_column(h, justify="left" if h in ("dataset", "codec") else "right", overflow="fold")
+    if not columns:
+        return None
+    wanted = tuple(c.strip() for c in columns.split(",") if c.strip())
+    check_metric_ids(list(wanted), info, "--columns")
+    return wanted
+
+
+def _print_table(entries, sort: str, wanted: tuple[str, ...] | None, info) -> None:
+    """The board in the terminal: never folds a number -- columns that do not fit are left out
+    (and named), so read a wide board with --columns or --format md."""
+    from lwbench.leaderboard import present_columns, table_rows
+
+    if wanted is None:
+        cols = present_columns(entries, tuple(info_id for info_id, i in info.items() if i.default))
+        if sort not in cols and any(e.value(sort) is not None for e in entries):
+            cols = (sort, *cols)
+    else:
+        cols = wanted
+    header, rows = table_rows(entries, cols, info)
+    width = console.width or 200
+    fixed = header.index("fail") + 1
+    # What rich needs per column: the widest cell, one space of padding each side, one border.
+    widths = [max(len(h), *(len(r[i]) for r in rows)) + 3 if rows else len(h) + 3 for i, h in enumerate(header)]
+    dropped: list[str] = []
+    keep = list(range(len(header)))
+    flags_col = [len(header) - 1] if header[-1] == "flags" else []
+    while sum(widths[i] for i in keep) + 1 > width and len(keep) > fixed + 1 + len(flags_col):
+        victim = [i for i in keep if i >= fixed and i not in flags_col][-1]
+        keep.remove(victim)
+        dropped.append(header[victim])
+    table = Table(title=f"Leaderboard (mean over frames; sorted by {escape(sort)})", title_justify="left")
+    for i in keep:
+        numeric = i >= fixed and i not in flags_col
+        table.add_column(escape(header[i]), justify="right" if numeric else "left", no_wrap=numeric)
     for r in rows:
-        table.add_row(*r)
+        table.add_row(*(escape(r[i]) for i in keep))
     console.print(table)
+    if dropped:
+        names = escape(", ".join(reversed(dropped)))
+        console.print(f"[dim]not shown (terminal too narrow): {names}; use --columns or --format md[/]")
     for e in entries:
         for err in e.errors:
-            err_console.print(f"[red]{e.label}[/]: {err}")
+            err_console.print(f"[red]{e.label}[/]: {err}", highlight=False)
+        if e.stale:
+            err_console.print(f"[dim]{e.label}: {e.stale} older row(s) scored another way are not included[/]")
 
 
 # ------------------------------------------------------------------------------ leaderboard
@@ -308,26 +320,21 @@ def leaderboard(
         float, typer.Option(help="Flag configurations whose coverage is below this.", min=0, max=1)
     ] = DEFAULT_MIN_COVERAGE,
 ) -> None:
-    """Aggregate stored rows (mean, median, p95 per codec configuration)."""
-    from lwbench.leaderboard import (
-        DEFAULT_COLUMNS,
-        build_leaderboard,
-        present_columns,
-        to_csv,
-        to_json,
-        to_markdown,
-    )
+    """Aggregate stored rows (mean, std, median, p95 per codec configuration)."""
+    from lwbench.leaderboard import build_leaderboard, present_columns, to_csv, to_json, to_markdown
     from lwbench.store import ResultStore
 
     if format not in ("table", "md", "csv", "json"):
         _fail(f"--format must be table, md, csv or json, got {format!r}")
     if not store.exists():
         _fail(f"no results store at {store} (run `lwbench run` first)")
+    reg = _registry()
+    info = reg.metric_info()
     try:
         with ResultStore(store, readonly=True) as results:
-            entries = build_leaderboard(
-                results, dataset=dataset, sort=sort, defaults=_defaults(_registry()), min_coverage=min_coverage
-            )
+            entries = build_leaderboard(results, dataset=dataset, sort=sort, info=info, min_coverage=min_coverage)
+        stored_ids = {m for e in entries for m in e.stats}
+        wanted = _columns(columns, {**dict.fromkeys(stored_ids), **info}, reg)
     except LwbenchError as exc:
         _fail(str(exc))
     if not entries:
@@ -336,13 +343,11 @@ def leaderboard(
         print(to_json(entries))
     elif format == "csv":
         print(to_csv(entries), end="")
+    elif format == "md":
+        cols = wanted or present_columns(entries, reg.default_columns())
+        print(to_markdown(entries, cols, info), end="")
     else:
-        wanted = tuple(c.strip() for c in columns.split(",")) if columns else DEFAULT_COLUMNS
-        cols = wanted if columns else present_columns(entries, wanted)
-        if format == "md":
-            print(to_markdown(entries, cols), end="")
-        else:
-            _print_table(entries, sort)
+        _print_table(entries, sort, wanted, info)
 
 
 # ---------------------------------------------------------------------------------- inspect
@@ -374,7 +379,9 @@ def simulate(
     seed: Annotated[int, typer.Option(help="Scene and noise seed.")] = 0,
     sensor: Annotated[str | None, typer.Option(help="Sensor preset (default: the scene's).")] = None,
 ) -> None:
-    """Write a simulated sequence to disk in KITTI layout (readable by lwbench and other tools)."""
+    """Write a simulated sequence to disk in KITTI layout (readable by lwbench and other tools).
+
+    The simulator is the default dataset (the installed dataset that declares ``is_default``)."""
     from lwbench.io import write_kitti_sequence
 
     reg = _registry()
@@ -384,7 +391,10 @@ def simulate(
             params["frames"] = frames
         if sensor is not None:
             params["sensor"] = sensor
-        ds = reg.dataset("sim")(**params)
+        from lwbench.run import resolve_dataset
+
+        spec = resolve_dataset(reg, None, params, seed)
+        ds = spec.build(reg)
         with Progress(console=console, disable=not sys.stdout.isatty()) as progress:
             task = progress.add_task(f"simulating {scene}", total=len(ds))
             scans = []

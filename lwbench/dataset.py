@@ -8,7 +8,8 @@ import json
 from pathlib import Path
 from typing import Any, ClassVar
 
-from lwbench.types import Frame, Param, resolve_params
+from lwbench.frame import Frame
+from lwbench.params import Param, resolve_params
 
 __all__ = ["Dataset"]
 
@@ -26,6 +27,8 @@ class Dataset(abc.ABC):
     name: ClassVar[str]
     description: ClassVar[str] = ""
     params: ClassVar[tuple[Param, ...]] = ()
+    # The dataset ``lwbench run`` uses when none is named (the built-in simulator: no download).
+    is_default: ClassVar[bool] = False
 
     def __init__(self, **params: Any) -> None:
         self.config: dict[str, Any] = resolve_params(self.name, self.params, params)

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from lwbench.types import Param, ParameterError
+from lwbench.errors import ParameterError
+from lwbench.params import Param
 
 __all__ = ["DEVICE_PARAM", "resolve_device"]
 

@@ -77,7 +77,7 @@ def _describe_payload(data: bytes, registry: Registry) -> dict:
 def _describe_store(path: Path) -> dict:
     from lwbench.store import ResultStore
 
-    with ResultStore(path) as store:
+    with ResultStore(path, readonly=True) as store:
         rows = list(store.rows())
     return {
         "kind": "lwbench results store (SQLite)",

@@ -1,8 +1,12 @@
 """Aggregating stored rows into a leaderboard: one line per (dataset, codec configuration).
 
-Frame metrics are summarised over the frames that succeeded (mean, median, p95); sequence
+Frame metrics are summarised over the frames that succeeded (mean, std, median, p95); sequence
 metrics have one value per configuration. ``failures`` counts failed rows of either kind, so a
 codec that crashes on half the frames cannot hide behind a good mean.
+
+What a metric id means -- its unit, whether lower or higher is better, whether it is a default
+column -- comes from the metric that declared it (:class:`lwbench.MetricId`, through the
+registry): lwbench knows no metric by name, so a third-party metric sorts and prints correctly.
 
 Rows are never averaged across ways of scoring: when the store holds rows of one configuration
 scored by different metric versions / parameters or produced by different codec releases, only
@@ -10,7 +14,8 @@ the newest scoring is used (the others are counted in ``stale``).
 
 Quality guard: a configuration is *flagged* when it covers less than ``min_coverage`` of the
 original returns, has failed rows, or failed ICP registrations; localization figures are marked
-not meaningful when the *original* scans already fail ICP on this dataset. Flags travel in every
+not meaningful when the *original* scans already fail ICP on this dataset; configurations on
+one dataset that were scored on different frame sets are marked too. Flags travel in every
 format (a ``flags`` list in JSON) and the default order puts unflagged configurations first, so
 a codec cannot rank first by throwing the scan away.
 """
@@ -21,58 +26,43 @@ import csv
 import io
 import json
 import math
-from collections import defaultdict
+from collections import Counter, defaultdict
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from lwbench.errors import LwbenchError
+from lwbench.metric import HIGHER, LOWER, MetricId
+from lwbench.params import config_label
 from lwbench.store import ResultRow, ResultStore
 
-__all__ = ["LeaderboardEntry", "build_leaderboard", "to_json", "to_csv", "to_markdown", "DEFAULT_COLUMNS"]
-
-# Lower is better for these; everything else sorts descending.
-LOWER_IS_BETTER = {
-    "bytes",
-    "bits_per_point",
-    "link_kbps",
-    "range_rmsd",
-    "false_returns",
-    "chamfer",
-    "hausdorff",
-    "encode_ms",
-    "decode_ms",
-    "select_ms",
-    "peak_mb",
-    "ate_rmse",
-    "ate_mean",
-    "rot_err_deg",
-    "rpe_trans",
-    "rpe_rot_deg",
-    "map_points",
-    "icp_failures",
-    "icp_failures_original",
-    "points_out",
-}
-DEFAULT_COLUMNS = (
-    "bytes",
-    "ratio",
-    "range_rmsd",
-    "coverage",
-    "false_returns",
-    "chamfer",
-    "d1_psnr",
-    "encode_ms",
-    "decode_ms",
-    "select_ms",
-    "ate_rmse",
-    "occ_iou",
-)
-
+__all__ = [
+    "DEFAULT_MIN_COVERAGE",
+    "LeaderboardEntry",
+    "build_leaderboard",
+    "check_metric_ids",
+    "header_name",
+    "table_rows",
+    "to_csv",
+    "to_json",
+    "to_markdown",
+]
 
 DEFAULT_MIN_COVERAGE = 0.9
-# Localization ids, shown as not meaningful when the original scans themselves fail ICP.
-LOCALIZATION_IDS = ("ate_rmse", "ate_mean", "rot_err_deg", "mape", "rpe_trans", "rpe_rot_deg", "icp_failures")
+# The localization ids a failing tracking of the *originals* makes meaningless.
+_LOCALIZATION_FLAG_SOURCE = "icp_failures_original"
+_LOCALIZATION_IDS = ("ate_rmse", "ate_mean", "rot_err_deg", "mape", "rpe_trans", "rpe_rot_deg", "icp_failures")
+STATS = ("mean", "std", "median", "p95")
+
+FLAG_TEXT = {
+    "low_coverage": "low coverage",
+    "failed_rows": "failed rows",
+    "icp_failures": "ICP failures",
+    "localization_not_meaningful": "loc. n/m",
+    "frames_differ": "other frames",
+}
 
 
 @dataclass
@@ -88,16 +78,24 @@ class LeaderboardEntry:
     dataset_id: str = ""
     flags: list[str] = field(default_factory=list)
     stale: int = 0
+    frame_set: tuple[int, ...] = ()
+    swept: tuple[str, ...] = ()  # parameters that take several values among this codec's entries
 
     @property
     def full_label(self) -> str:
-        return f"{self.codec}({','.join(f'{k}={v}' for k, v in sorted(self.params.items()))})"
+        return config_label(self.codec, self.params)
 
     @property
     def label(self) -> str:
-        """The codec with the parameters that differ from its declared defaults."""
-        shown = {k: v for k, v in sorted(self.params.items()) if k not in self.defaults or self.defaults[k] != v}
-        return f"{self.codec}({','.join(f'{k}={v}' for k, v in shown.items())})" if shown else self.codec
+        """The codec with the parameters that differ from its declared defaults, plus any that
+        are swept on this board (so ``ratio=0.1`` of a 0.1/0.2 sweep is not a bare name). The
+        defaults come from the rows themselves, so the label is the same on every machine."""
+        shown = {
+            k: v
+            for k, v in self.params.items()
+            if k in self.swept or k not in self.defaults or self.defaults[k] != v
+        }
+        return config_label(self.codec, shown)
 
     def value(self, metric: str, stat: str = "mean") -> float | None:
         return self.stats.get(metric, {}).get(stat)
@@ -106,11 +104,11 @@ class LeaderboardEntry:
     def localization_meaningful(self) -> bool:
         return "localization_not_meaningful" not in self.flags
 
-    def shown(self, metric: str) -> float | None:
+    def shown(self, metric: str, stat: str = "mean") -> float | None:
         """The value a table shows: ``None`` for figures flagged not meaningful."""
-        if metric in LOCALIZATION_IDS and not self.localization_meaningful:
+        if metric in _LOCALIZATION_IDS and not self.localization_meaningful:
             return None
-        return self.value(metric)
+        return self.value(metric, stat)
 
     def as_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {
@@ -120,12 +118,13 @@ class LeaderboardEntry:
             "params": self.params,
             "frames": self.frames,
             "failures": self.failures,
+            "label": self.label,
             "flags": list(self.flags),
         }
         for metric, s in self.stats.items():
             out[metric] = _finite_or_none(s.get("mean"))
-            out[f"{metric}_median"] = _finite_or_none(s.get("median"))
-            out[f"{metric}_p95"] = _finite_or_none(s.get("p95"))
+            for stat in STATS[1:]:
+                out[f"{metric}_{stat}"] = _finite_or_none(s.get(stat))
         return out
 
 
@@ -135,12 +134,14 @@ def _finite_or_none(v: float | None) -> float | None:
 
 def _summarise(values: list[float]) -> dict[str, float | None]:
     if not values:
-        return {"mean": None, "median": None, "p95": None}
+        return dict.fromkeys(STATS)
     arr = np.asarray(values, dtype=np.float64)
-    # The empirical quantile (no interpolation) stays defined when values are +inf
-    # (lossless PSNR), where interpolating would give inf - inf = NaN.
+    finite = arr[np.isfinite(arr)]
+    # The empirical quantile (no interpolation) stays defined when values are +inf (lossless
+    # PSNR), where interpolating would give inf - inf = NaN; std is over the finite values.
     return {
         "mean": float(arr.mean()),
+        "std": float(finite.std()) if len(arr) > 1 and len(finite) == len(arr) else None,
         "median": float(np.percentile(arr, 50, method="inverted_cdf")),
         "p95": float(np.percentile(arr, 95, method="inverted_cdf")),
     }
@@ -168,10 +169,37 @@ def _flag(entry: LeaderboardEntry, min_coverage: float) -> None:
         entry.flags.append("low_coverage")
     if entry.failures:
         entry.flags.append("failed_rows")
-    if (entry.value("icp_failures_original") or 0) > 0:
+    if (entry.value(_LOCALIZATION_FLAG_SOURCE) or 0) > 0:
         entry.flags.append("localization_not_meaningful")
     elif (entry.value("icp_failures") or 0) > 0:
         entry.flags.append("icp_failures")
+
+
+def _mark_swept_and_frames(entries: list[LeaderboardEntry]) -> None:
+    by_codec: dict[tuple[str, str], list[LeaderboardEntry]] = defaultdict(list)
+    for e in entries:
+        by_codec[(e.dataset_id, e.codec)].append(e)
+    for group in by_codec.values():
+        keys = {k for e in group for k in e.params}
+        swept = tuple(sorted(k for k in keys if len({json.dumps(e.params.get(k)) for e in group}) > 1))
+        for e in group:
+            e.swept = swept
+    by_dataset: dict[str, list[LeaderboardEntry]] = defaultdict(list)
+    for e in entries:
+        if e.frame_set:
+            by_dataset[e.dataset_id].append(e)
+    for group in by_dataset.values():
+        common, _ = Counter(e.frame_set for e in group).most_common(1)[0]
+        for e in group:
+            if e.frame_set != common:
+                e.flags.append("frames_differ")
+
+
+def check_metric_ids(wanted: list[str], available: Mapping[str, Any] | set[str], what: str) -> None:
+    """Reject unknown metric ids with the list of valid ones (never a silent empty column)."""
+    unknown = [w for w in wanted if w not in available]
+    if unknown:
+        raise LwbenchError(f"{what}: unknown metric id(s) {', '.join(unknown)}; valid: {', '.join(sorted(available))}")
 
 
 def build_leaderboard(
@@ -180,14 +208,15 @@ def build_leaderboard(
     dataset: str | None = None,
     sort: str | None = None,
     descending: bool | None = None,
-    defaults: dict[str, dict] | None = None,
+    info: Mapping[str, MetricId] | None = None,
     keys: set[str] | None = None,
     min_coverage: float = DEFAULT_MIN_COVERAGE,
     flagged_last: bool = True,
 ) -> list[LeaderboardEntry]:
-    """Entries sorted by ``sort`` (best first; flagged configurations after the others unless
-    ``flagged_last=False``). ``defaults`` (codec -> declared defaults) only shortens labels to
-    the parameters that differ; ``keys`` restricts the board to those rows (what a run asked)."""
+    """Entries sorted by ``sort`` (best first, in the direction its metric declares; flagged
+    configurations after the others unless ``flagged_last=False``). ``info`` maps metric ids to
+    their declarations (``Registry.metric_info()``); ``keys`` restricts the board to those rows
+    (what one run asked for)."""
     groups: dict[tuple, list[ResultRow]] = defaultdict(list)
     labels: dict[str, str] = {}
     for row in store.rows(dataset=dataset):
@@ -201,11 +230,14 @@ def build_leaderboard(
     entries = []
     for (ds_id, codec, params_json), rows in groups.items():
         ds = labels[ds_id] if labels[ds_id] not in ambiguous else f"{labels[ds_id]} [{ds_id}]"
-        entry = LeaderboardEntry(ds, codec, json.loads(params_json), defaults=(defaults or {}).get(codec, {}))
-        entry.dataset_id = ds_id
+        entry = LeaderboardEntry(ds, codec, json.loads(params_json), dataset_id=ds_id)
         rows, entry.stale = _newest_scoring(rows)
+        entry.defaults = next((r.extra["declared_defaults"] for r in rows if "declared_defaults" in r.extra), {})
         per_metric: dict[str, list[float]] = defaultdict(list)
+        frames = []
         for r in rows:
+            if r.kind == "frame":
+                frames.append(r.frame)
             if r.status != "ok":
                 entry.failures += 1
                 if r.error and len(entry.errors) < 3:
@@ -218,11 +250,16 @@ def build_leaderboard(
                     per_metric[k].append(v)
                 else:
                     per_metric.setdefault(k, [])
+        entry.frame_set = tuple(sorted(frames))
         entry.stats = {k: _summarise(v) for k, v in per_metric.items()}
         _flag(entry, min_coverage)
         entries.append(entry)
+    _mark_swept_and_frames(entries)
     key = sort or "ratio"
-    desc = descending if descending is not None else key not in LOWER_IS_BETTER
+    if sort is not None and entries:
+        check_metric_ids([key], {m for e in entries for m in e.stats} | set(info or {}), "--sort")
+    better = (info or {}).get(key)
+    desc = descending if descending is not None else (getattr(better, "better", HIGHER) != LOWER)
 
     def sort_key(e: LeaderboardEntry):
         v = e.shown(key)
@@ -250,33 +287,48 @@ def _fmt(v: float | None) -> str:
     return f"{v:.3g}"
 
 
-def _cell(e: LeaderboardEntry, metric: str) -> str:
-    if metric in LOCALIZATION_IDS and not e.localization_meaningful and e.value(metric) is not None:
+def _cell(e: LeaderboardEntry, metric: str, with_std: bool) -> str:
+    if metric in _LOCALIZATION_IDS and not e.localization_meaningful and e.value(metric) is not None:
         return "n/m"  # the original scans fail ICP here: no codec's figure means anything
-    return _fmt(e.value(metric))
+    text = _fmt(e.value(metric))
+    std = e.value(metric, "std")
+    if with_std and std is not None and e.value(metric) is not None:
+        text += f" ± {_fmt(std)}"
+    return text
 
 
-FLAG_TEXT = {
-    "low_coverage": "low coverage",
-    "failed_rows": "failed rows",
-    "icp_failures": "ICP failures",
-    "localization_not_meaningful": "loc. n/m",
-}
+def header_name(metric: str, info: Mapping[str, MetricId] | None) -> str:
+    unit = getattr((info or {}).get(metric), "unit", "")
+    # Units a reader needs; shares, counts and the ratio are plain numbers.
+    return f"{metric} [{unit}]" if unit and unit not in ("share", "pts", "frames", "x") else metric
 
 
-def table_rows(entries: list[LeaderboardEntry], columns: tuple[str, ...]) -> tuple[list[str], list[list[str]]]:
+def table_rows(
+    entries: list[LeaderboardEntry],
+    columns: tuple[str, ...],
+    info: Mapping[str, MetricId] | None = None,
+    *,
+    with_std: bool = False,
+) -> tuple[list[str], list[list[str]]]:
     """Header and formatted cells; the dataset column only when there is more than one, the
     flags column only when some entry is flagged."""
     many = len({e.dataset for e in entries}) > 1
     flagged = any(e.flags for e in entries)
-    header = [*(["dataset"] if many else []), "codec", "frames", "fail", *columns, *(["flags"] if flagged else [])]
+    header = [
+        *(["dataset"] if many else []),
+        "codec",
+        "frames",
+        "fail",
+        *(header_name(c, info) for c in columns),
+        *(["flags"] if flagged else []),
+    ]
     rows = [
         [
             *([e.dataset] if many else []),
             e.label,
             str(e.frames),
             str(e.failures),
-            *(_cell(e, c) for c in columns),
+            *(_cell(e, c, with_std) for c in columns),
             *([", ".join(FLAG_TEXT.get(f, f) for f in e.flags)] if flagged else []),
         ]
         for e in entries
@@ -289,8 +341,10 @@ def present_columns(entries: list[LeaderboardEntry], wanted: tuple[str, ...]) ->
     return tuple(c for c in wanted if any(e.value(c) is not None for e in entries))
 
 
-def to_markdown(entries: list[LeaderboardEntry], columns: tuple[str, ...]) -> str:
-    header, rows = table_rows(entries, columns)
+def to_markdown(
+    entries: list[LeaderboardEntry], columns: tuple[str, ...], info: Mapping[str, MetricId] | None = None
+) -> str:
+    header, rows = table_rows(entries, columns, info, with_std=True)
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     lines += ["| " + " | ".join(r) + " |" for r in rows]
     return "\n".join(lines) + "\n"

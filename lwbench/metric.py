@@ -22,11 +22,44 @@ import numpy as np
 
 from lwbench.codec import CodecKind
 from lwbench.dataset import Dataset
-from lwbench.types import Frame, Param, resolve_params
+from lwbench.frame import Frame
+from lwbench.params import Param, resolve_params
 
-__all__ = ["Evaluation", "FrameMetric", "SequenceEvaluation", "SequenceMetric"]
+__all__ = ["Evaluation", "FrameMetric", "MetricId", "SequenceEvaluation", "SequenceMetric", "LOWER", "HIGHER"]
 
 MetricValues = dict[str, float | None]
+LOWER, HIGHER = "lower", "higher"
+
+
+class MetricId(str):
+    """A metric id that says what it is: its unit, which direction is better, and whether the
+    leaderboard shows it by default -- so a third-party metric sorts and prints correctly
+    without lwbench knowing its name. It *is* the id string (usable as a dict key, in JSON).
+
+    ``better`` is ``"lower"``, ``"higher"`` or ``""`` (a count with no better direction).
+    """
+
+    unit: str
+    better: str
+    default: bool
+
+    def __new__(cls, name: str, unit: str = "", better: str = "", *, default: bool = False) -> MetricId:
+        if better not in (LOWER, HIGHER, ""):
+            raise ValueError(f"metric id {name}: better must be 'lower', 'higher' or '', got {better!r}")
+        obj = super().__new__(cls, name)
+        obj.unit, obj.better, obj.default = unit, better, default
+        return obj
+
+    def __reduce__(self):  # pickles (worker processes) with its description
+        return (MetricId, (str(self), self.unit, self.better), {"default": self.default})
+
+    def describe(self) -> dict:
+        return {"id": str(self), "unit": self.unit, "better": self.better, "default": self.default}
+
+
+def as_metric_id(i: str) -> MetricId:
+    """Plain strings (older plugins) become ids with no unit and no direction."""
+    return i if isinstance(i, MetricId) else MetricId(i)
 
 
 @dataclass
@@ -51,7 +84,12 @@ class Evaluation:
 
 @dataclass
 class SequenceEvaluation:
-    """One codec configuration over a whole sequence: originals, decoded scans, poses."""
+    """One codec configuration over a whole sequence: originals, decoded scans, poses.
+
+    :meth:`cached` shares what depends only on the originals (ground truth, the original map)
+    between the configurations of a run: the cache belongs to the run's sequence stage, which
+    creates one per dataset and frame selection.
+    """
 
     dataset: Dataset
     frame_indices: list[int]
@@ -59,18 +97,27 @@ class SequenceEvaluation:
     codec_name: str
     params: dict[str, Any]
     seed: int = 0
+    _cache: dict[str, Any] = field(default_factory=dict, repr=False)
 
     def original(self, i: int) -> Frame:
         return self.dataset[self.frame_indices[i]]
+
+    def cached(self, key: str, compute: Callable[[], Any]) -> Any:
+        """An intermediate that depends only on the original scans (and ``key``)."""
+        if key not in self._cache:
+            self._cache[key] = compute()
+        return self._cache[key]
 
 
 class _Metric:
     """What frame and sequence metrics share: a name, ids, a version and declared parameters."""
 
     name: ClassVar[str]
-    ids: ClassVar[tuple[str, ...]]
+    ids: ClassVar[tuple[str, ...]]  # MetricId (or plain str: no unit, no direction)
     description: ClassVar[str] = ""
     version: ClassVar[str] = "1"
+    # Where the metric's columns go on the leaderboard, left to right (built-ins: 10-60).
+    order: ClassVar[int] = 100
     params: ClassVar[tuple[Param, ...]] = ()
     settings: ClassVar[dict[str, Any]] = {}
 
@@ -86,7 +133,7 @@ class _Metric:
         return {
             "name": cls.name,
             "version": cls.version,
-            "ids": list(cls.ids),
+            "ids": [as_metric_id(i).describe() for i in cls.ids],
             "description": cls.description,
             "params": [p.describe() for p in cls.params],
         }

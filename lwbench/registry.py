@@ -19,7 +19,7 @@ from lwbench import hookspecs
 from lwbench.codec import Codec
 from lwbench.dataset import Dataset
 from lwbench.errors import PluginError
-from lwbench.metric import FrameMetric, SequenceMetric
+from lwbench.metric import FrameMetric, MetricId, SequenceMetric, as_metric_id
 
 __all__ = ["Registry", "PluginFailure", "PluginError", "get_registry", "ENTRY_POINT_GROUP"]
 
@@ -145,6 +145,17 @@ class Registry:
             )
         for name, given in metric_params.items():
             known[name](**given)
+
+    def metric_info(self) -> dict[str, MetricId]:
+        """Every metric id with its unit and direction, in leaderboard order (by each metric's
+        ``order``, then as declared)."""
+        metrics = sorted(
+            (*self.frame_metrics.values(), *self.sequence_metrics.values()), key=lambda m: (m.order, m.name)
+        )
+        return {str(i): as_metric_id(i) for m in metrics for i in m.ids}
+
+    def default_columns(self) -> tuple[str, ...]:
+        return tuple(i for i, info in self.metric_info().items() if info.default)
 
     def metric_ids(self) -> list[str]:
         ids: list[str] = []

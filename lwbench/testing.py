@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from lwbench.frame import Frame
 from lwbench.sensor import SensorModel
-from lwbench.types import Frame
 
 __all__ = ["room_scan", "ROOM_HALF_EXTENT"]
 

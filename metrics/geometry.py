@@ -20,7 +20,7 @@ import math
 import numpy as np
 from scipy.spatial import cKDTree
 
-from lwbench import Evaluation, FrameMetric, Param, import_open3d
+from lwbench import HIGHER, LOWER, Evaluation, FrameMetric, MetricId, Param, import_open3d
 
 NORMAL_NEIGHBOURS = 12
 
@@ -39,7 +39,13 @@ def psnr(mse: float, peak: float) -> float:
 
 class GeometryMetric(FrameMetric):
     name = "geometry"
-    ids = ("chamfer", "hausdorff", "d1_psnr", "d2_psnr")
+    order = 30
+    ids = (
+        MetricId("chamfer", "m", LOWER, default=True),
+        MetricId("hausdorff", "m", LOWER),
+        MetricId("d1_psnr", "dB", HIGHER, default=True),
+        MetricId("d2_psnr", "dB", HIGHER),
+    )
     description = "Chamfer and Hausdorff distances (m); D1/D2 PSNR (dB) as MPEG pc_error, peak = max range"
     params = (
         Param("peak", "float", None, "PSNR peak (m, MPEG pc_error's -r); default: the sensor's max range", low=1e-9),

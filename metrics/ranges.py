@@ -32,7 +32,7 @@ import math
 import numpy as np
 from scipy.spatial import cKDTree
 
-from lwbench import Evaluation, FrameMetric, Param, SensorModel
+from lwbench import HIGHER, LOWER, Evaluation, FrameMetric, MetricId, Param, SensorModel
 
 __all__ = ["RangeMetric", "direction_coordinates", "pair_by_direction"]
 
@@ -105,7 +105,12 @@ def pair_by_direction(
 class RangeMetric(FrameMetric):
     name = "ranges"
     version = "2"  # 1 was the cell-based definition
-    ids = ("range_rmsd", "coverage", "false_returns")
+    order = 20
+    ids = (
+        MetricId("range_rmsd", "m", LOWER, default=True),
+        MetricId("coverage", "share", HIGHER, default=True),
+        MetricId("false_returns", "share", LOWER, default=True),
+    )
     description = (
         "original and decoded returns paired by direction (nearest, within tolerance x the beam and "
         "azimuth spacing): RMSD (m) of range differences over pairs; coverage = share of original "

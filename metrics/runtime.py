@@ -4,12 +4,18 @@ first call of each codec configuration in a process is a separate warm-up pass, 
 
 from __future__ import annotations
 
-from lwbench import Evaluation, FrameMetric
+from lwbench import LOWER, Evaluation, FrameMetric, MetricId
 
 
 class RuntimeMetric(FrameMetric):
     name = "runtime"
-    ids = ("encode_ms", "decode_ms", "select_ms", "peak_mb")
+    order = 40
+    ids = (
+        MetricId("encode_ms", "ms", LOWER, default=True),
+        MetricId("decode_ms", "ms", LOWER, default=True),
+        MetricId("select_ms", "ms", LOWER, default=True),
+        MetricId("peak_mb", "MiB", LOWER),
+    )
     description = (
         "wall time per call (ms; select_ms for selection codecs, whose encode_ms is then the "
         "shared serializer); peak_mb = peak resident memory added during encode+decode (MiB)"

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from lwbench import Evaluation, FrameMetric
+from lwbench import HIGHER, LOWER, Evaluation, FrameMetric, MetricId
 
 
 class SizeMetric(FrameMetric):
@@ -10,7 +10,15 @@ class SizeMetric(FrameMetric):
     included, so a codec cannot look smaller by leaving metadata out of its count."""
 
     name = "size"
-    ids = ("bytes", "ratio", "bits_per_point", "link_kbps", "points_in", "points_out")
+    order = 10
+    ids = (
+        MetricId("bytes", "B", LOWER, default=True),
+        MetricId("ratio", "x", HIGHER, default=True),
+        MetricId("bits_per_point", "bit", LOWER),
+        MetricId("link_kbps", "kB/s", LOWER),
+        MetricId("points_in", "pts"),
+        MetricId("points_out", "pts"),
+    )
     description = (
         "payload bytes; ratio = 12*|P| / bytes; bits per original point; link rate in kB/s "
         "(1 kB = 1000 B) at the sensor's frame rate; point counts in and out"

@@ -13,8 +13,6 @@ Ids (DESIGN.md): ``ate_rmse``, ``ate_mean`` (m), ``rot_err_deg``, ``rpe_trans`` 
 from __future__ import annotations
 
 import json
-from collections import OrderedDict
-from typing import Any
 
 import numpy as np
 from lwbench_metrics.localization import (
@@ -26,29 +24,13 @@ from lwbench_metrics.localization import (
 )
 from lwbench_metrics.occupancy import OCCUPANCY_PARAMS, compare_occupancy, occupied_voxels
 
-from lwbench import SequenceEvaluation, SequenceMetric, hookimpl
+from lwbench import HIGHER, LOWER, MetricId, SequenceEvaluation, SequenceMetric, hookimpl
 
 __all__ = ["LocalizationMetric", "OdometryMetric", "OccupancyMetric", "lwbench_metrics"]
 
-# What depends only on the originals is the same for every codec configuration of a run:
-# cache it per (dataset identity, frames, settings), a few entries only.
-_CACHE: OrderedDict[tuple, Any] = OrderedDict()
-_CACHE_SIZE = 8
-
-
-def _cached(key: tuple, compute):
-    if key in _CACHE:
-        _CACHE.move_to_end(key)
-        return _CACHE[key]
-    value = compute()
-    _CACHE[key] = value
-    while len(_CACHE) > _CACHE_SIZE:
-        _CACHE.popitem(last=False)
-    return value
-
-
-def _seq_key(seq: SequenceEvaluation) -> tuple:
-    return (seq.dataset.identity(), tuple(seq.frame_indices))
+# What depends only on the originals is the same for every codec configuration of a run; it is
+# shared through SequenceEvaluation.cached (the run's sequence stage owns the cache), keyed by
+# what it depends on besides the originals.
 
 
 def _ground_truth(seq: SequenceEvaluation) -> tuple[np.ndarray, int]:
@@ -60,24 +42,32 @@ def _ground_truth(seq: SequenceEvaluation) -> tuple[np.ndarray, int]:
             raise ValueError(f"{seq.dataset.name}: sequence metrics need ground-truth poses on every frame")
         return np.stack([f.pose for f in frames]), sum(len(f.points) for f in frames)
 
-    return _cached(("gt",) + _seq_key(seq), compute)
+    return seq.cached("ground_truth", compute)
+
+
+def _pose_ids(prefix: str, default: bool) -> tuple[MetricId, ...]:
+    """The trajectory-error ids, shared by map tracking and odometry (``odom_`` prefix)."""
+    return (
+        MetricId(f"{prefix}ate_rmse", "m", LOWER, default=default),
+        MetricId(f"{prefix}ate_mean", "m", LOWER),
+        MetricId(f"{prefix}rot_err_deg", "deg", LOWER),
+        MetricId(f"{prefix}mape", "", LOWER),
+        MetricId(f"{prefix}rpe_trans", "m", LOWER),
+        MetricId(f"{prefix}rpe_rot_deg", "deg", LOWER),
+        MetricId(f"{prefix}icp_failures", "frames", LOWER),
+    )
 
 
 class LocalizationMetric(SequenceMetric):
     """PocoNet §IV-B: decoded scans tracked by point-to-plane ICP against a map of decoded scans."""
 
     name = "localization"
+    order = 50
     ids = (
-        "ate_rmse",
-        "ate_mean",
-        "rot_err_deg",
-        "mape",
-        "rpe_trans",
-        "rpe_rot_deg",
-        "icp_failures",
-        "map_points",
-        "map_share",
-        "icp_failures_original",
+        *_pose_ids("", default=True),
+        MetricId("map_points", "pts", LOWER),
+        MetricId("map_share", "share", LOWER),
+        MetricId("icp_failures_original", "frames", LOWER),
     )
     version = "2"  # 2: icp_failures_original
     description = (
@@ -104,7 +94,7 @@ class LocalizationMetric(SequenceMetric):
             return int(self._track(originals, gt)[1].failed.sum())
 
         settings_key = json.dumps(self.settings, sort_keys=True, default=str)
-        out["icp_failures_original"] = float(_cached(("loc_ref", settings_key) + _seq_key(seq), original_failures))
+        out["icp_failures_original"] = float(seq.cached(f"original_tracking:{settings_key}", original_failures))
         return out
 
 
@@ -112,15 +102,8 @@ class OdometryMetric(SequenceMetric):
     """Scan-to-scan ICP drift on the decoded stream alone (no map)."""
 
     name = "odometry"
-    ids = (
-        "odom_ate_rmse",
-        "odom_ate_mean",
-        "odom_rot_err_deg",
-        "odom_mape",
-        "odom_rpe_trans",
-        "odom_rpe_rot_deg",
-        "odom_icp_failures",
-    )
+    order = 55
+    ids = _pose_ids("odom_", default=False)
     description = (
         "Decoded scans registered to the previous decoded scan (point-to-plane ICP, constant-velocity "
         "initial guess) and chained from the first GT pose: the drift of a receiver of the stream."
@@ -140,9 +123,10 @@ class OccupancyMetric(SequenceMetric):
     """Log-odds voxel occupancy (hits and ray-cast free space) of decoded vs original scans."""
 
     name = "occupancy"
+    order = 60
     settings = dict(OCCUPANCY_PARAMS)
     ids = tuple(
-        f"occ_{m}{_suffix(v, i == 0)}"
+        MetricId(f"occ_{m}{_suffix(v, i == 0)}", "share", HIGHER, default=(i == 0 and m == "iou"))
         for i, v in enumerate(OCCUPANCY_PARAMS["resolutions"])
         for m in ("iou", "precision", "recall")
     )
@@ -162,7 +146,7 @@ class OccupancyMetric(SequenceMetric):
                 scans = [seq.original(k).points for k in range(len(seq.frame_indices))]
                 return occupied_voxels(scans, gt, sensor, v, p["l_hit"], p["l_miss"], p["max_range"])
 
-            ref = _cached(("occ", v, p["l_hit"], p["l_miss"], p["max_range"]) + _seq_key(seq), original_map)
+            ref = seq.cached(f"original_occupancy:{v}:{p['l_hit']}:{p['l_miss']}:{p['max_range']}", original_map)
             dec = occupied_voxels(seq.decoded, gt, sensor, v, p["l_hit"], p["l_miss"], p["max_range"])
             for name, value in compare_occupancy(ref, dec).items():
                 out[f"occ_{name}{_suffix(v, i == 0)}"] = value

@@ -10,7 +10,7 @@ import pytest
 from lwbench import Dataset, Frame, Param, RepresentationCodec, get_sensor, hookimpl
 from lwbench.leaderboard import build_leaderboard
 from lwbench.registry import new_registry
-from lwbench.runner import DatasetSpec, Runner, expand_codec_configs
+from lwbench.run import DatasetSpec, Runner, RunPlan, expand_codec_configs
 from lwbench.store import ResultStore
 
 CALLS: list[int] = []
@@ -74,7 +74,8 @@ def registry():
 def _runner(reg, store, codecs, **kw):
     spec = DatasetSpec("tiny", kw.pop("dataset_params", {}))
     configs = [c for name, values in codecs for c in expand_codec_configs(reg.codec(name), values, 0)]
-    return Runner(store, spec, configs, registry=reg, **kw)
+    plan = RunPlan(spec, tuple(configs), metric_params=kw.pop("metric_params", {}))
+    return Runner(store, plan, registry=reg, **kw)
 
 
 def test_rows_for_every_frame_and_config_with_all_core_metrics(registry, tmp_path):
@@ -121,8 +122,8 @@ def test_a_codec_that_raises_is_recorded_and_the_run_goes_on(registry, tmp_path)
 def test_interrupted_run_resumes_without_recomputing_a_row(registry, tmp_path):
     path = tmp_path / "r.sqlite"
 
-    def stop_after_three(done, total, row):
-        if done == 3:
+    def stop_after_three(progress):
+        if progress.done == 3:
             raise KeyboardInterrupt
 
     with ResultStore(path) as store:
@@ -182,7 +183,7 @@ def test_parallel_workers_give_the_same_rows_as_one_process(tmp_path):
     out = []
     for workers in (1, 2):
         with ResultStore(tmp_path / f"w{workers}.sqlite") as store:
-            assert Runner(store, spec, configs, workers=workers, registry=reg).run().evaluated == 4
+            assert Runner(store, RunPlan(spec, tuple(configs)), workers=workers, registry=reg).run().evaluated == 4
             out.append({r.frame: r.metrics["chamfer"] for r in store.rows()})
     assert out[0] == out[1]
 

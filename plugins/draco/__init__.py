@@ -36,6 +36,7 @@ class DracoCodec(RepresentationCodec):
     """Draco k-d tree coding of the quantized x, y, z (point order is not preserved)."""
 
     name = "draco"
+    in_default_run = True
     version = "1"
     description = "Google Draco (DracoPy): quantized xyz, k-d tree entropy coding"
     params = (

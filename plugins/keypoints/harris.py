@@ -121,6 +121,7 @@ class Harris3D(KeypointSelector):
     """
 
     name = "harris3d"
+    in_default_run = True
     description = "Harris-3D keypoints (PCL HarrisKeypoint3D: normal covariance + NMS), budgeted"
     params = (
         *KeypointSelector.params,

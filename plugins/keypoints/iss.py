@@ -89,6 +89,7 @@ class ISS(KeypointSelector):
     """
 
     name = "iss"
+    in_default_run = True
     description = "Intrinsic Shape Signatures keypoints (Open3D/PCL ISS), budgeted"
     params = (
         *KeypointSelector.params,

@@ -146,6 +146,7 @@ class SIFT3D(KeypointSelector):
     """
 
     name = "sift3d"
+    in_default_run = True
     description = "SIFT-3D keypoints (PCL SIFTKeypoint: DoG scale-space extrema of z), budgeted"
     params = (
         *KeypointSelector.params,

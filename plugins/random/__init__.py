@@ -16,6 +16,7 @@ class RandomSelector(SelectionCodec):
     """
 
     name = "random"
+    in_default_run = True
     description = "uniform random subset (seeded)"
     params = (*BUDGET_PARAMS, Param("seed", "int", 0, "random seed", low=0))
 

@@ -62,6 +62,7 @@ class RangeImageCodec(RepresentationCodec):
     """Range image on the sensor's grid, quantized (or exact float32), predicted, zstd-coded."""
 
     name = "rangeimage"
+    in_default_run = True
     version = "2"
     description = "beam x azimuth range image, quantized ranges, row-delta + zstd"
     params = (

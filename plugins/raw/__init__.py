@@ -11,6 +11,7 @@ class RawCodec(RepresentationCodec):
     """Sends the scan as it is: 12 bytes per point plus the shared header."""
 
     name = "raw"
+    in_default_run = True
     description = "lossless float32 x,y,z (the reference)"
 
     def encode(self, frame: Frame) -> bytes:

@@ -66,6 +66,7 @@ class SimDataset(Dataset):
     """
 
     name = "sim"
+    is_default = True
     description = "built-in LiDAR simulator: tunnel, urban or indoor scene with ground-truth poses"
     params = (
         Param("scene", "str", "tunnel", "procedural scene", choices=tuple(SCENES)),

@@ -36,6 +36,7 @@ class VoxelSelector(SelectionCodec):
     centroid (the spot a centroid filter would report) or its geometric centre."""
 
     name = "voxel"
+    in_default_run = True
     version = "1"
     description = "voxel grid: one real scan point per occupied voxel"
     params = (

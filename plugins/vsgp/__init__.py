@@ -47,6 +47,7 @@ class VSGPCodec(RepresentationCodec):
     """
 
     name = "vsgp"
+    in_default_run = True
     version = "1"
     description = "variational sparse GP of the occupancy surface (RQ-ARD, collapsed Titsias bound)"
     supports_gpu = True

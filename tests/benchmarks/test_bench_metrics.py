@@ -17,7 +17,7 @@ from lwbench_metrics import GeometryMetric, RangeMetric, SizeMetric
 from lwbench import CodecKind, Evaluation
 from lwbench.datasets import KittiDataset
 from lwbench.registry import get_registry
-from lwbench.runner import DatasetSpec, Runner, expand_codec_configs
+from lwbench.run import DatasetSpec, Runner, RunPlan, expand_codec_configs
 from lwbench.store import ResultStore
 
 pytestmark = pytest.mark.benchmark
@@ -56,7 +56,7 @@ def test_runner_overhead_share(benchmark, codec, real_data, tmp_path):
     def one_run():
         with ResultStore(tmp_path / f"{next(counter)}.sqlite") as store:
             t0 = time.perf_counter()
-            Runner(store, spec, configs, registry=reg, sequence_metrics=False).run()
+            Runner(store, RunPlan(spec, tuple(configs), sequence_metrics=False), registry=reg).run()
             wall = time.perf_counter() - t0
             rows = list(store.rows())
         return wall, rows

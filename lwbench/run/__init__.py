@@ -1,0 +1,50 @@
+"""The run path, one stage per module -- read them in this order to follow a frame:
+
+1. :mod:`.plan` -- what to run: dataset x codec configurations x sweeps, one seed policy;
+2. :mod:`.evaluate` -- one frame through one configuration, scored (a worker's whole job);
+3. :mod:`.record` -- results become rows with keys and provenance, decoded clouds artifacts;
+4. :mod:`.sequence` -- sequence metrics over a configuration's recorded frames;
+
+with :mod:`.execute` (where evaluations run) and :mod:`.runner` (the four in order). The
+leaderboard (:mod:`lwbench.leaderboard`) reads what they stored.
+"""
+
+from .evaluate import Evaluator, FrameResult
+from .execute import FrameTask, LocalExecutor, Worker
+from .plan import (
+    CodecConfig,
+    DatasetSpec,
+    RunPlan,
+    config_label,
+    expand_codec_configs,
+    parse_assignments,
+    parse_sweeps,
+    plan_run,
+    resolve_dataset,
+)
+from .record import Provenance, RowFactory
+from .runner import Progress, Runner, RunSummary
+from .sequence import SequenceStage
+
+__all__ = [
+    "CodecConfig",
+    "DatasetSpec",
+    "Evaluator",
+    "FrameResult",
+    "FrameTask",
+    "LocalExecutor",
+    "Progress",
+    "Provenance",
+    "RowFactory",
+    "RunPlan",
+    "RunSummary",
+    "Runner",
+    "SequenceStage",
+    "Worker",
+    "config_label",
+    "expand_codec_configs",
+    "parse_assignments",
+    "parse_sweeps",
+    "plan_run",
+    "resolve_dataset",
+]

@@ -1,0 +1,135 @@
+"""The run: plan -> evaluate -> record -> sequence metrics, for one :class:`~.plan.RunPlan`.
+
+:meth:`Runner.run` is the whole run path in order: open the dataset, work out which rows are
+missing from the store (keys already there are skipped, which makes an interrupted run
+resumable and a repeated command free), hand those frames to an executor, record each result
+as it arrives, then run the sequence metrics. A codec or metric that raises becomes a ``failed``
+row with its error and the run goes on; Ctrl-C leaves every finished row stored.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from lwbench.registry import Registry, get_registry
+from lwbench.store import ResultRow, ResultStore
+
+from .evaluate import Evaluator
+from .execute import FrameTask, LocalExecutor, Worker
+from .plan import CodecConfig, RunPlan
+from .record import Provenance, RowFactory, record_frame
+from .sequence import SequenceStage
+
+__all__ = ["Progress", "RunSummary", "Runner"]
+
+
+@dataclass
+class RunSummary:
+    evaluated: int = 0
+    skipped: int = 0
+    failed: int = 0
+    sequence_rows: int = 0
+    interrupted: bool = False
+    failures: list[str] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class Progress:
+    """What :meth:`Runner.run` reports after each stored row."""
+
+    phase: str  # "frames" | "sequence"
+    done: int
+    total: int
+    row: ResultRow | None = None
+
+
+class Runner:
+    def __init__(
+        self,
+        store: ResultStore,
+        plan: RunPlan,
+        *,
+        registry: Registry | None = None,
+        workers: int = 1,
+        retry_failed: bool = False,
+        force: bool = False,
+    ) -> None:
+        self.store = store
+        self.plan = plan
+        self.configs: list[CodecConfig] = list(plan.configs)
+        self.registry = registry or get_registry()
+        self.workers = max(1, workers)
+        self.retry_failed = retry_failed
+        self.force = force
+        self.dataset = plan.dataset.build(self.registry)
+        self.dataset_id = self.dataset.identity()
+        self.frame_indices = plan.frame_indices(self.dataset)
+        self.worker = Worker(self.registry, plan.metric_params, {plan.dataset.label: self.dataset})
+        self.evaluator: Evaluator = self.worker.evaluator
+        self.rows = RowFactory(
+            self.registry, plan.dataset.label, self.dataset_id, plan.seed, self.evaluator.scoring, Provenance.current()
+        )
+        self.sequence: SequenceStage | None = None
+        if plan.sequence_metrics and self.dataset.has_poses and self.registry.sequence_metrics:
+            metrics = self.registry.sequence_metric_instances(plan.metric_params)
+            self.sequence = SequenceStage(store, self.dataset, self.frame_indices, self.rows, self.evaluator, metrics)
+
+    # -- what the run asks for -------------------------------------------------------------
+    def keys(self) -> set[str]:
+        """Keys of every row this run asks for (frame rows and, with poses, sequence rows)."""
+        out = {self.rows.frame_row(i, c).key for i in self.frame_indices for c in self.configs}
+        if self.sequence is not None:
+            out |= set(self.sequence.keys(self.configs))
+        return out
+
+    def _todo(self, key: str) -> bool:
+        if self.force:
+            return key not in self._done_now
+        status = self.store.status(key)
+        return status is None or (status == "failed" and self.retry_failed)
+
+    def pending(self) -> list[FrameTask]:
+        # Decoded clouds are kept when the sequence stage needs them, and for the first frame
+        # (a report shows one decoded frame per configuration).
+        first = self.frame_indices[0] if self.frame_indices else None
+        tasks = []
+        for i in self.frame_indices:
+            configs = tuple(c for c in self.configs if self._todo(self.rows.frame_row(i, c).key))
+            if configs:
+                tasks.append(FrameTask(self.plan.dataset, i, configs, self.sequence is not None or i == first))
+        return tasks
+
+    # -- the run ---------------------------------------------------------------------------
+    def run(self, on_progress: Callable[[Progress], None] | None = None) -> RunSummary:
+        """Evaluate what is not stored yet; ``on_progress`` is called after each stored row."""
+        self._done_now: set[str] = set()
+        summary = RunSummary()
+        tasks = self.pending()
+        total = sum(len(t.configs) for t in tasks)
+        summary.skipped = len(self.frame_indices) * len(self.configs) - total
+        executor = LocalExecutor(self.worker, self.workers, self.plan.metric_params)
+
+        def recorded(row: ResultRow, phase: str, done: int, n: int) -> None:
+            self._done_now.add(row.key)
+            if row.status == "failed":
+                summary.failed += 1
+                where = f"frame {row.frame}" if row.kind == "frame" else f"sequence metric {row.part}"
+                summary.failures.append(f"{row.codec} {where}: {row.error}")
+            if on_progress:
+                on_progress(Progress(phase, done, n, row))
+
+        try:
+            for results in executor.map(tasks):
+                for result in results:
+                    row = record_frame(self.store, self.rows, result)
+                    summary.evaluated += 1
+                    recorded(row, "frames", summary.evaluated, total)
+            if self.sequence is not None:
+                n = sum(self._todo(k) for k in self.sequence.keys(self.configs))
+                for row in self.sequence.run(self.configs, self._todo, self.plan.seed):
+                    summary.sequence_rows += 1
+                    recorded(row, "sequence", summary.sequence_rows, n)
+        except KeyboardInterrupt:
+            summary.interrupted = True
+        return summary
