@@ -18,7 +18,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from lwbench import HIGHER, LOWER, Evaluation, FrameMetric, MetricId, Param, import_open3d
 
@@ -57,6 +56,8 @@ class GeometryMetric(FrameMetric):
         if len(p) == 0 or len(q) == 0:
             return dict.fromkeys(self.ids)
         peak = self.config["peak"] or ev.frame.sensor.max_range
+        from scipy.spatial import cKDTree  # here, not at import: `lwbench list` stays fast
+
         tree_p = ev.cached("original_kdtree", lambda: cKDTree(p))
         normals = ev.cached("original_normals", lambda: _normals(p))
         d_pq, j_pq = cKDTree(q).query(p, workers=-1)

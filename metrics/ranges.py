@@ -28,11 +28,14 @@ a codec that drops half the returns covers half.
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from lwbench import HIGHER, LOWER, Evaluation, FrameMetric, MetricId, Param, SensorModel
+
+if TYPE_CHECKING:
+    from scipy.spatial import cKDTree
 
 __all__ = ["RangeMetric", "direction_coordinates", "pair_by_direction"]
 
@@ -73,6 +76,8 @@ def _box_rows(sensor: SensorModel) -> float:
 
 
 def _tree(coords: np.ndarray, sensor: SensorModel) -> cKDTree:
+    from scipy.spatial import cKDTree  # here, not at import: `lwbench list` stays fast
+
     return cKDTree(coords, boxsize=[float(sensor.n_azimuth), _box_rows(sensor) + 4 * _BEAM_MARGIN])
 
 

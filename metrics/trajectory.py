@@ -21,7 +21,6 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 __all__ = [
     "PoseRelation",
@@ -70,6 +69,8 @@ def rotation_angle(rotations: np.ndarray, degrees: bool = False) -> np.ndarray:
     flat = r.reshape(-1, 3, 3)
     if len(flat) == 0:
         return np.zeros(r.shape[:-2])
+    from scipy.spatial.transform import Rotation
+
     angles = Rotation.from_matrix(flat).magnitude().reshape(r.shape[:-2])
     return np.degrees(angles) if degrees else angles
 

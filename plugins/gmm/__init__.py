@@ -5,9 +5,17 @@ from __future__ import annotations
 from lwbench import hookimpl
 
 from .codec import GMMCodec, body_size
-from .mixture import ConvergenceWarning, NotFittedError, TorchGaussianMixture
 
 __all__ = ["GMMCodec", "TorchGaussianMixture", "ConvergenceWarning", "NotFittedError", "body_size"]
+
+
+def __getattr__(name: str):
+    # The estimator needs torch; import it only when asked (plugin discovery stays fast).
+    if name in ("TorchGaussianMixture", "ConvergenceWarning", "NotFittedError"):
+        from . import mixture
+
+        return getattr(mixture, name)
+    raise AttributeError(name)
 
 
 @hookimpl

@@ -30,11 +30,12 @@ into the empty tunnel.
 
 from __future__ import annotations
 
+import functools
 import struct
 import warnings
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
 
 from lwbench import (
     DEVICE_PARAM,
@@ -45,7 +46,10 @@ from lwbench import (
     resolve_device,
 )
 
-from .mixture import TorchGaussianMixture, mixture_log_prob, sample_mixture
+if TYPE_CHECKING:  # torch is imported where it is used: discovering plugins must stay fast
+    import torch
+
+    from .mixture import TorchGaussianMixture
 
 __all__ = ["GMMCodec", "body_size"]
 
@@ -54,7 +58,13 @@ _DTYPES = {"float32": (0, np.dtype("<f4")), "float16": (1, np.dtype("<f2"))}
 _BY_CODE = {code: dt for code, dt in _DTYPES.values()}
 _FLOATS_PER_COMPONENT = 10
 _MAX_POINTS = 1 << 26  # a decoder must not be made to allocate without bound by a header
-_TRIL = torch.tril_indices(3, 3)
+
+
+@functools.cache
+def _tril():
+    import torch
+
+    return torch.tril_indices(3, 3)
 
 
 def body_size(k_occ: int, k_free: int, dtype: str = "float32") -> int:
@@ -64,18 +74,24 @@ def body_size(k_occ: int, k_free: int, dtype: str = "float32") -> int:
 
 def _pack(gm: TorchGaussianMixture) -> np.ndarray:
     """``(K, 10)`` float64 rows: weight, mean, lower Cholesky entries."""
-    chol = torch.as_tensor(gm.cholesky_)[:, _TRIL[0], _TRIL[1]].numpy()
+    import torch
+
+    tril = _tril()
+    chol = torch.as_tensor(gm.cholesky_)[:, tril[0], tril[1]].numpy()
     return np.concatenate([gm.weights_[:, None], gm.means_, chol], axis=1)
 
 
 def _unpack(rows: np.ndarray) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Rows back to (weights, means, lower Cholesky factors), checked, float64."""
+    import torch
+
     rows = torch.as_tensor(rows, dtype=torch.float64)
     if not torch.isfinite(rows).all():
         raise PayloadError("gmm payload: non-finite component parameters")
     w, mu = rows[:, 0], rows[:, 1:4]
     chol = torch.zeros(len(rows), 3, 3, dtype=torch.float64)
-    chol[:, _TRIL[0], _TRIL[1]] = rows[:, 4:]
+    tril = _tril()
+    chol[:, tril[0], tril[1]] = rows[:, 4:]
     diag = torch.diagonal(chol, dim1=-2, dim2=-1)
     if len(rows) and ((w < 0).any() or float(w.sum()) <= 0 or (diag <= 0).any()):
         raise PayloadError("gmm payload: negative weights or a non-positive Cholesky diagonal")
@@ -84,6 +100,8 @@ def _unpack(rows: np.ndarray) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]
 
 def free_space_samples(points: np.ndarray, margin: float, gen: torch.Generator) -> torch.Tensor:
     """One point per return, uniform on its ray between the sensor and ``margin`` before the hit."""
+    import torch
+
     p = torch.as_tensor(points, dtype=torch.float64)
     r = torch.linalg.vector_norm(p, dim=1, keepdim=True).clamp_min(1e-9)
     reach = (r - margin).clamp_min(0) / r
@@ -123,6 +141,8 @@ class GMMCodec(RepresentationCodec):
 
     # -- encode ------------------------------------------------------------------------------
     def _fit(self, points: torch.Tensor | np.ndarray, k: int, gen_seed: int) -> np.ndarray:
+        from .mixture import TorchGaussianMixture
+
         cfg = self.config
         gm = TorchGaussianMixture(
             k,
@@ -153,6 +173,8 @@ class GMMCodec(RepresentationCodec):
         rows = [self._fit(fit_pts, k_occ, init_seed)] if k_occ else []
         k_free = min(cfg["free_components"], len(fit_pts))
         if k_free:
+            import torch
+
             gen = torch.Generator().manual_seed(int(rng.integers(2**31)))
             free = free_space_samples(fit_pts, cfg["free_margin"], gen)
             rows.append(self._fit(free, k_free, init_seed))
@@ -201,6 +223,10 @@ class GMMCodec(RepresentationCodec):
         if not 0 < truncate <= 100 or seed < 0:
             raise PayloadError("gmm payload: truncate or seed out of range")
         (w, mu, chol), free, n = self._read(payload)
+        import torch
+
+        from .mixture import mixture_log_prob, sample_mixture
+
         gen = torch.Generator().manual_seed(seed)
         x, _ = sample_mixture(w, mu, chol, n, gen, truncate)
         if free is not None:

@@ -20,7 +20,6 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 __all__ = [
     "Neighbourhood",
@@ -92,6 +91,8 @@ def hybrid_neighbourhood(points: np.ndarray, max_nn: int, radius: float) -> Neig
     pts = np.ascontiguousarray(points, dtype=np.float64)
     n = len(pts)
     k = int(min(max_nn, n))
+    from scipy.spatial import cKDTree  # here, not at import: plugin discovery stays fast
+
     tree = cKDTree(pts, leafsize=32, balanced_tree=False, compact_nodes=False)
     dist, idx = tree.query(pts, k=k, distance_upper_bound=radius, workers=-1)
     if k == 1:
@@ -309,6 +310,8 @@ def radius_nms(points: np.ndarray, response: np.ndarray, candidates: np.ndarray,
     cand = np.flatnonzero(candidates)
     if len(cand) < 2:
         return candidates
+    from scipy.spatial import cKDTree
+
     tree = cKDTree(np.asarray(points)[cand].astype(np.float64), leafsize=8, balanced_tree=False, compact_nodes=False)
     pairs = tree.query_pairs(radius, output_type="ndarray")
     r = response[cand]

@@ -6,7 +6,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.ndimage import gaussian_filter
 
 from .mesh import Mesh
 from .trajectory import Path
@@ -37,6 +36,8 @@ def smooth_noise(rng: np.random.Generator, shape: tuple[int, int], sigma: tuple[
                   wrap_second: bool) -> np.ndarray:
     """Gaussian-filtered white noise with unit standard deviation (a cheap 2-D value noise)."""
     mode = ("nearest", "wrap" if wrap_second else "nearest")
+    from scipy.ndimage import gaussian_filter  # here: building a scene is rare, discovery is not
+
     field = gaussian_filter(rng.standard_normal(shape), sigma, mode=mode)
     return field / max(float(field.std()), 1e-12)
 

@@ -12,13 +12,16 @@ matter more than others for PocoNet's observation-count labels.
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from .base import Scene
 from .mesh import Material, MeshBuilder
 from .trajectory import Path, waypoint_path
+
+if TYPE_CHECKING:
+    from scipy.spatial import cKDTree
 
 ASPHALT = Material(0.4)
 PAINT = Material(0.9)
@@ -68,6 +71,8 @@ def build_urban(rng: np.random.Generator, drive: float = 200.0) -> Scene:
         e = side * 3.5
         b.sweep(c_fine, n_fine, np.array([[e - 0.075, 0.005], [e + 0.075, 0.005]]), PAINT)
     _centre_dashes(b, centre)
+    from scipy.spatial import cKDTree
+
     tree = cKDTree(centre.points[:, :2])
     for side in (-1.0, 1.0):
         _buildings(b, rng, centre, tree, side)

@@ -10,10 +10,9 @@ predicts the surface on the sensor's grid and drops cells whose predictive varia
 from __future__ import annotations
 
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import torch
 
 from lwbench import (
     DEVICE_PARAM,
@@ -26,10 +25,12 @@ from lwbench import (
     resolve_device,
 )
 
-from .decoder import reconstruct
-from .encoder import FitConfig, fit_scan
-from .gp import Hyper
 from .wire import BODY_FORMATS, pack_body, unpack_body
+
+if TYPE_CHECKING:  # the GP modules need torch: imported on first encode/decode, not at discovery
+    import torch
+
+    from .encoder import FitConfig
 
 __all__ = ["VSGPCodec"]
 
@@ -87,6 +88,8 @@ class VSGPCodec(RepresentationCodec):
 
     def fit_config(self) -> FitConfig:
         """The encoder settings these parameters select."""
+        from .encoder import FitConfig
+
         c = self.config
         return FitConfig(num_inducing=c["num_inducing"], adapt=c["adapt"], steps=c["steps"], lr=c["lr"],
                          tol=c["tol"], subsample=c["subsample"], fit_stride=c["fit_stride"],
@@ -98,6 +101,8 @@ class VSGPCodec(RepresentationCodec):
         r_oc = float(self.config["r_oc"] or sensor.max_range)
         ranges = sensor.project(frame.points).ranges
         t1 = time.perf_counter()
+        from .encoder import fit_scan
+
         res = fit_scan(ranges, sensor, r_oc, self.fit_config(), self._device())
         t2 = time.perf_counter()
         body = pack_body(self.config["body"], res.z, res.u, res.hyper.as_list(), r_oc, _el_span(sensor))
@@ -112,6 +117,11 @@ class VSGPCodec(RepresentationCodec):
         payload = self.read_payload(data)
         fmt = self.meta_field(payload, "body", str)
         sensor = self.read_sensor(payload)
+        import torch
+
+        from .decoder import reconstruct
+        from .gp import Hyper
+
         z, u, hyper, r_oc = unpack_body(fmt, payload.body, _el_span(sensor))
         timings = {"parse": time.perf_counter() - t0}
         try:
