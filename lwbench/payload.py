@@ -29,31 +29,14 @@ from typing import Any
 import numpy as np
 
 from lwbench.errors import PayloadError
+from lwbench.geometry import pose_to_vec, vec_to_pose
 
-__all__ = ["Payload", "PayloadError", "FORMAT_VERSION", "MAGIC", "pose_to_vec", "vec_to_pose"]
+__all__ = ["Payload", "PayloadError", "FORMAT_VERSION", "MAGIC"]
 
 MAGIC = b"LWBP"
 FORMAT_VERSION = 1
 _FLAG_POSE = 0x01
 _POSE = struct.Struct("<6f")
-
-
-def pose_to_vec(pose: np.ndarray) -> np.ndarray:
-    """4x4 rigid transform -> (tx, ty, tz, rx, ry, rz) with a rotation vector."""
-    from scipy.spatial.transform import Rotation
-
-    pose = np.asarray(pose, dtype=np.float64)
-    return np.concatenate([pose[:3, 3], Rotation.from_matrix(pose[:3, :3]).as_rotvec()])
-
-
-def vec_to_pose(vec: np.ndarray) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
-    vec = np.asarray(vec, dtype=np.float64)
-    pose = np.eye(4)
-    pose[:3, :3] = Rotation.from_rotvec(vec[3:]).as_matrix()
-    pose[:3, 3] = vec[:3]
-    return pose
 
 
 @dataclass(frozen=True)

@@ -23,6 +23,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from lwbench.geometry import spherical, unit_directions
+
 __all__ = ["SensorModel", "RangeImage", "SENSOR_PRESETS", "get_sensor", "register_sensor", "UnknownSensorError"]
 
 
@@ -107,21 +109,12 @@ class SensorModel:
 
     def ray_directions(self) -> np.ndarray:
         """Unit direction of every ray, shape ``(n_beams, n_azimuth, 3)`` float64."""
-        el = self.elevations_rad[:, None]
-        az = self.azimuths_rad()[None, :]
-        return np.stack(
-            np.broadcast_arrays(np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)),
-            axis=-1,
-        )
+        return unit_directions(self.azimuths_rad()[None, :], self.elevations_rad[:, None])
 
     # -- projection -----------------------------------------------------------------------
     def cells(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Row, column and range of each point (no filtering)."""
-        p = np.asarray(points, dtype=np.float64)
-        r = np.linalg.norm(p, axis=1)
-        theta = np.arctan2(p[:, 1], p[:, 0])
-        with np.errstate(invalid="ignore", divide="ignore"):
-            alpha = np.arcsin(np.clip(p[:, 2] / np.where(r > 0, r, 1.0), -1.0, 1.0))
+        r, theta, alpha = spherical(points)
         rows = np.searchsorted(self._mid, alpha)
         cols = np.floor((theta + math.pi) / self.azimuth_step_rad).astype(np.int64) % self.n_azimuth
         return rows.astype(np.int64), cols, r

@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from lwbench.frame import Frame
+from lwbench.geometry import unit_directions
 from lwbench.sensor import SensorModel
 
 __all__ = ["room_scan", "ROOM_HALF_EXTENT"]
@@ -58,7 +59,7 @@ def room_scan(
         drift = np.linspace(0.0, rng.uniform(0.1, 0.4), n_a)[None, :]
         cols = cols + drift
     az = -np.pi + (cols + phase) * sensor.azimuth_step_rad
-    dirs = np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], axis=-1).reshape(-1, 3)
+    dirs = unit_directions(az, el).reshape(-1, 3)
     r = _room_range(dirs, np.asarray(half_extent, dtype=np.float64))
     r = r + rng.normal(0.0, noise, len(r)) if noise > 0 else r
     keep = (r > sensor.min_range) & (r < sensor.max_range)

@@ -28,8 +28,9 @@ from typing import Any
 import numpy as np
 
 from lwbench import SensorModel
+from lwbench.geometry import rotate, voxel_centres, voxel_key_range_x, voxel_keys
 
-__all__ = ["OCCUPANCY_PARAMS", "occupied_voxels", "compare_occupancy", "voxel_keys"]
+__all__ = ["OCCUPANCY_PARAMS", "occupied_voxels", "compare_occupancy"]
 
 OCCUPANCY_PARAMS: dict[str, Any] = {
     "resolutions": (0.2, 0.05),  # m; the unsuffixed ids use the first
@@ -39,29 +40,6 @@ OCCUPANCY_PARAMS: dict[str, Any] = {
     "l_hit": math.log(0.7 / 0.3),
     "l_miss": math.log(0.4 / 0.6),
 }
-
-_BITS = 21
-_OFF = 1 << (_BITS - 1)
-_MASK = (1 << _BITS) - 1
-
-
-def voxel_keys(points: np.ndarray, voxel: float) -> np.ndarray:
-    """Pack voxel indices into sortable int64 keys (x major); +-1M voxels per axis."""
-    idx = np.floor(np.asarray(points, dtype=np.float64) / voxel).astype(np.int64) + _OFF
-    if len(idx) and (idx.min() < 0 or idx.max() > _MASK):
-        raise ValueError(f"points beyond the +-{_OFF * voxel:.0f} m range of the occupancy grid")
-    return (idx[:, 0] << (2 * _BITS)) | (idx[:, 1] << _BITS) | idx[:, 2]
-
-
-def _rotate(rotation: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """``points @ rotation.T`` computed as ``(rotation @ points.T).T``, ~20x faster in numpy for (N,3)."""
-    return (rotation @ points.T).T
-
-
-def _key_centres(keys: np.ndarray, voxel: float) -> np.ndarray:
-    idx = np.stack([(keys >> (2 * _BITS)) & _MASK, (keys >> _BITS) & _MASK, keys & _MASK], axis=1)
-    return (idx - _OFF + 0.5) * voxel
-
 
 def occupied_voxels(
     scans: list[np.ndarray],
@@ -82,12 +60,12 @@ def occupied_voxels(
     for s, T in zip(scans, poses, strict=True):
         s = np.asarray(s, dtype=np.float64)
         s = s[np.einsum("ij,ij->i", s, s) <= max_range * max_range]
-        hit_keys.append(np.unique(voxel_keys(_rotate(T[:3, :3], s) + T[:3, 3], voxel)))
+        hit_keys.append(np.unique(voxel_keys(rotate(s, T[:3, :3]) + T[:3, 3], voxel)))
     if not hit_keys or sum(len(h) for h in hit_keys) == 0:
         return np.zeros(0, dtype=np.int64)
     cand, hits = np.unique(np.concatenate(hit_keys), return_counts=True)
     misses = np.zeros(len(cand), dtype=np.int64)
-    centres = _key_centres(cand, voxel)
+    centres = voxel_centres(cand, voxel)
     centres = centres.astype(np.float32)  # 0.1 mm resolution at 1 km: plenty for >= 1 cm voxels
     half = np.float32(voxel / 2)
     for s, T, hk in zip(scans, poses, hit_keys, strict=True):
@@ -103,13 +81,11 @@ def occupied_voxels(
         q_range = np.linalg.norm(q, axis=1)
         ray_dir = np.zeros((len(flat_index), 3), dtype=np.float32)
         ray_range = np.zeros(len(flat_index), dtype=np.float32)
-        ray_dir[valid] = _rotate(T[:3, :3], q / q_range[:, None])
+        ray_dir[valid] = rotate(q / q_range[:, None], T[:3, :3])
         ray_range[valid] = np.minimum(q_range, max_range)
         reach = min(float(q_range.max()), max_range)
         # Candidates are sorted by x index first: slice those within the scan's reach in x.
-        ix0 = int(math.floor((T[0, 3] - reach) / voxel)) + _OFF
-        ix1 = int(math.floor((T[0, 3] + reach) / voxel)) + _OFF
-        lo, hi = np.searchsorted(cand, [ix0 << (2 * _BITS), (ix1 + 1) << (2 * _BITS)])
+        lo, hi = np.searchsorted(cand, voxel_key_range_x(T[0, 3] - reach, T[0, 3] + reach, voxel))
         if hi <= lo:
             continue
         origin = T[:3, 3].astype(np.float32)
@@ -117,9 +93,7 @@ def occupied_voxels(
         r2 = np.einsum("ij,ij->i", rel, rel)
         sel = np.flatnonzero(r2 < reach * reach)
         rel = rel[sel]
-        rows, cols, _ = sensor.cells(
-            _rotate(T[:3, :3].T.astype(np.float32), rel)
-        )  # the centre's ray-grid cell
+        rows, cols, _ = sensor.cells(rotate(rel, T[:3, :3].T.astype(np.float32)))  # the centre's ray-grid cell
         cell = rows * sensor.n_azimuth + cols
         u = ray_dir[cell]
         # Slab test: where the return's ray enters and leaves the (axis-aligned) voxel.

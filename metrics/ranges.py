@@ -33,6 +33,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from lwbench import HIGHER, LOWER, Evaluation, FrameMetric, MetricId, Param, SensorModel
+from lwbench.geometry import spherical
 
 if TYPE_CHECKING:
     from scipy.spatial import cKDTree
@@ -48,11 +49,7 @@ _BEAM_MARGIN = 16.0
 def direction_coordinates(points: np.ndarray, sensor: SensorModel) -> tuple[np.ndarray, np.ndarray]:
     """``(N, 2)`` coordinates (azimuth in steps in ``[0, n_azimuth)``, elevation as a beam index
     shifted into the tree's box) and the ranges; zero-range points get NaN coordinates."""
-    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    r = np.linalg.norm(p, axis=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        el = np.arcsin(np.clip(p[:, 2] / r, -1.0, 1.0))
-    az = np.arctan2(p[:, 1], p[:, 0])
+    r, az, el = spherical(points)
     col = np.mod((az + math.pi) / sensor.azimuth_step_rad, sensor.n_azimuth)
     col = np.where(col >= sensor.n_azimuth, 0.0, col)  # mod can round up to the period itself
     beams = sensor.elevations_rad

@@ -7,6 +7,7 @@ import abc
 import numpy as np
 
 from lwbench import BUDGET_PARAMS, Frame, LwbenchError, Param, SelectionCodec
+from lwbench.geometry import voxel_keys
 
 __all__ = ["KeypointError", "KeypointSelector", "MIN_POINTS", "MAX_NN_PARAM", "top_k", "voxel_firsts", "voxel_param"]
 
@@ -34,21 +35,11 @@ def voxel_param(default: float) -> Param:
 def voxel_firsts(points: np.ndarray, leaf: float) -> np.ndarray:
     """Sorted indices of the first point (in scan order) of every occupied voxel.
 
-    Coordinate-major float arithmetic and an unstable argsort with the smallest index taken
-    per run of equal keys: 1.7x faster than ``np.unique(..., return_index=True)`` on row-major
-    integer columns (6.2 vs 10.7 ms on a 124,668-point KITTI frame, leaf 0.1 m), same result.
+    An unstable argsort of the scan's voxel keys with the smallest index taken per run of equal
+    keys: 1.7x faster than ``np.unique(..., return_index=True)`` (6.2 vs 10.7 ms on a
+    124,668-point KITTI frame, leaf 0.1 m), same result.
     """
-    f = np.empty((3, len(points)), dtype=np.float64)
-    f[:] = np.asarray(points).T
-    f /= leaf
-    np.floor(f, out=f)
-    f -= f.min(axis=1, keepdims=True)  # whole numbers: exact in float64 below 2**53
-    ijk = f.astype(np.int64)
-    dims = ijk.max(axis=1) + 1
-    if float(dims[0]) * float(dims[1]) * float(dims[2]) >= 2.0**62:  # too fine for one int64 key
-        _, first = np.unique(ijk.T, axis=0, return_index=True)
-        return np.sort(first)
-    key = (ijk[0] * dims[1] + ijk[1]) * dims[2] + ijk[2]
+    key = voxel_keys(points, leaf, anchor="scan")
     perm = key.argsort()
     ks = key[perm]
     start = np.flatnonzero(np.concatenate([[True], ks[1:] != ks[:-1]]))

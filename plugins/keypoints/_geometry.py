@@ -21,6 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lwbench.geometry import voxel_keys
+
 __all__ = [
     "Neighbourhood",
     "hybrid_neighbourhood",
@@ -354,14 +356,7 @@ def voxel_downsample(
     Returns ``(centroids (M, 3), mean values (M,), voxel id of every input point (N,))``.
     """
     pts = np.asarray(points, dtype=np.float64)
-    ijk = np.floor(pts / leaf).astype(np.int64)
-    ijk -= ijk.min(axis=0)
-    dims = ijk.max(axis=0) + 1
-    if float(dims[0]) * float(dims[1]) * float(dims[2]) < 2.0**62:
-        key = (ijk[:, 0] * dims[1] + ijk[:, 1]) * dims[2] + ijk[:, 2]
-        _, inverse = np.unique(key, return_inverse=True)
-    else:  # a grid too fine to pack into one int64 key: slower row-wise unique
-        _, inverse = np.unique(ijk, axis=0, return_inverse=True)
+    _, inverse = np.unique(voxel_keys(pts, leaf, anchor="scan"), return_inverse=True)
     inverse = inverse.reshape(-1)
     m = int(inverse.max()) + 1 if len(inverse) else 0
     cnt = np.bincount(inverse, minlength=m).astype(np.float64)

@@ -6,8 +6,8 @@ centroid* (or to the voxel's centre) instead, so it is a selection codec: the ke
 real returns, go through the shared point serializer, and their bytes are counted exactly like
 those of the keypoint selectors it competes with.
 
-Vectorized: integer voxel keys are packed into one int64 per point and grouped with one stable
-sort; centroids, distances and the per-voxel minimum are reductions over the sorted runs -- no
+Vectorized: voxel keys (one int64 per point, :func:`lwbench.geometry.voxel_keys`) are grouped
+with one stable sort; centroids, distances and the per-voxel minimum are reductions over the sorted runs -- no
 Python loop over points.
 """
 
@@ -16,20 +16,9 @@ from __future__ import annotations
 import numpy as np
 
 from lwbench import Frame, Param, SelectionCodec, hookimpl
+from lwbench.geometry import voxel_keys
 
-__all__ = ["VoxelSelector", "voxel_keys"]
-
-_BITS = 21  # bits per axis in the packed key: 2**21 voxels per axis (200 km at 0.1 m)
-
-
-def voxel_keys(points: np.ndarray, size: float) -> np.ndarray:
-    """One int64 per point naming its voxel (``floor(p / size)`` per axis, packed)."""
-    ijk = np.floor(np.asarray(points, dtype=np.float64) / size).astype(np.int64)
-    ijk -= ijk.min(axis=0)
-    if len(ijk) and int(ijk.max()) >= 1 << _BITS:
-        raise ValueError(f"voxel: scan spans more than 2**{_BITS} voxels of {size} m per axis")
-    return (ijk[:, 0] << (2 * _BITS)) | (ijk[:, 1] << _BITS) | ijk[:, 2]
-
+__all__ = ["VoxelSelector"]
 
 class VoxelSelector(SelectionCodec):
     """Keeps at most one point per voxel of side ``voxel_size``: the one nearest the voxel's
@@ -51,7 +40,7 @@ class VoxelSelector(SelectionCodec):
         if n == 0:
             return np.zeros(0, dtype=np.int64)
         size = self.config["voxel_size"]
-        keys = voxel_keys(pts, size)
+        keys = voxel_keys(pts, size, anchor="scan")
         # One stable sort groups the voxels (ties keep index order); everything after it is
         # per-group reductions over contiguous runs.
         order = np.argsort(keys, kind="stable")

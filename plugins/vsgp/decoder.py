@@ -17,6 +17,7 @@ import torch
 from scipy.interpolate import CubicSpline
 
 from lwbench import SensorModel
+from lwbench.geometry import cartesian
 
 from .gp import Hyper, Predictor, rq_grid
 
@@ -84,11 +85,8 @@ def reconstruct(z: np.ndarray, u: np.ndarray, h: Hyper, r_oc: float, sensor: Sen
     t1 = time.perf_counter()
     r = r_oc - mean
     keep = variance_mask(var, k_m, k_std, v_floor * h.outputscale) & (r >= sensor.min_range) & (r < r_oc)
-    ce, ca = np.cos(el)[:, None], np.cos(az)[None, :]
-    se, sa = np.sin(el)[:, None], np.sin(az)[None, :]
     rows, cols = np.nonzero(keep)
-    rk = r[rows, cols]
-    pts = np.stack([rk * ce[rows, 0] * ca[0, cols], rk * ce[rows, 0] * sa[0, cols], rk * se[rows, 0]], axis=1)
+    pts = cartesian(r[rows, cols], az[cols], el[rows])
     if timings is not None:
         timings["predict"] = t1 - t0
         timings["sampling"] = time.perf_counter() - t1
