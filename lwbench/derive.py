@@ -275,8 +275,11 @@ def _histogram(az: np.ndarray, el: np.ndarray, bin_deg: float) -> _Reading:
     return _Reading(np.sort(table), step, {})
 
 
-def _coverage_deg(az: np.ndarray) -> int:
-    return int(np.unique(np.floor(az).astype(np.int64) % 360).size)
+def _coverage_deg(az: np.ndarray, step: float) -> int:
+    """Degrees of azimuth with returns, in bins wide enough that a coarse sensor fills them."""
+    width = max(1.0, 2.0 * step)
+    bins = np.unique(np.floor((az % 360.0) / width).astype(np.int64))
+    return int(round(min(360.0, bins.size * width)))
 
 
 def derive_sensor(
@@ -329,7 +332,7 @@ def derive_sensor(
             f"{sensor.azimuth_step_deg:.4f} deg (no ring field, and the point order is neither ring- "
             f"nor firing-major); if that is not the sensor, {OVERRIDE_HINT}"
         )
-    coverage = _coverage_deg(az)
+    coverage = _coverage_deg(az, sensor.azimuth_step_deg)
     if coverage < 324:
         found.append(
             f"the scan covers only {coverage} of 360 deg of azimuth (cropped?): beams it never "
