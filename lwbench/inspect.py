@@ -2,14 +2,20 @@
 
 from __future__ import annotations
 
+import sqlite3
+import warnings
+from contextlib import closing
 from pathlib import Path
 
 import numpy as np
 
+from lwbench.derive import DataWarning
+from lwbench.errors import DataFormatError
 from lwbench.payload import MAGIC, Payload
 from lwbench.registry import Registry
+from lwbench.sensor import SensorModel
 
-__all__ = ["describe"]
+__all__ = ["describe", "is_results_store", "WHAT_INSPECT_READS"]
 
 
 def _cloud_summary(points: np.ndarray) -> dict:
@@ -24,30 +30,74 @@ def _cloud_summary(points: np.ndarray) -> dict:
     }
 
 
+WHAT_INSPECT_READS = (
+    "lwbench inspect reads lwbench payloads, lwbench results stores, scan files (.bin, .pcd.bin, .pcd, "
+    ".ply, .xyz) and dataset folders (KITTI layout, folders of scan files)"
+)
+
+
 def describe(path: Path, registry: Registry) -> dict:
+    """What ``path`` holds, read without writing a byte (a store is opened read-only)."""
     if path.is_file():
         with open(path, "rb") as fh:
             head = fh.read(16)
         if head.startswith(MAGIC):
             return _describe_payload(path.read_bytes(), registry)
         if head.startswith(b"SQLite format 3"):
+            if not is_results_store(path):
+                raise DataFormatError(
+                    f"{path}: an SQLite database, but not an lwbench results store (no results/meta tables "
+                    f"of lwbench's schema; a ROS 2 bag?); {WHAT_INSPECT_READS}"
+                )
             return _describe_store(path)
     for name, cls in registry.datasets.items():
         if cls.sniff(path):
-            ds = cls(path=str(path))
-            frame = ds[0]
-            info = {
-                "kind": f"scan data ({name} loader)",
-                "frames": len(ds),
-                "poses": ds.has_poses,
-                "sensor": frame.sensor.to_dict(),
-                "fields": [f for f in ("intensity", "ring", "time") if getattr(frame, f) is not None],
-            }
-            info.update({f"first frame {k}": v for k, v in _cloud_summary(frame.points).items()})
-            return info
-    from lwbench.types import LwbenchError
+            return _describe_dataset(path, name, cls)
+    raise DataFormatError(f"{path}: not something lwbench can read; {WHAT_INSPECT_READS}")
 
-    raise LwbenchError(f"{path}: not an lwbench payload, results store, or scan file/folder lwbench can read")
+
+def _sensor_summary(sensor: SensorModel) -> dict:
+    compact = sensor.to_dict()
+    if "preset" in compact:
+        return compact
+    return {
+        "name": sensor.name,
+        "beams": sensor.n_beams,
+        "elevations_deg": [round(e, 3) for e in sensor.elevations_deg],
+        "azimuth_step_deg": round(sensor.azimuth_step_deg, 5),
+        "columns": sensor.n_azimuth,
+        "range_m": [sensor.min_range, sensor.max_range],
+        "rate_hz": sensor.rate_hz,
+    }
+
+
+def _describe_dataset(path: Path, name: str, cls) -> dict:
+    # The loaders' DataWarnings (skipped files, a guessed beam table) belong in the report.
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", DataWarning)
+        ds = cls(path=str(path))
+        frame = ds[0]
+    info: dict = {
+        "kind": f"scan data ({name} loader)",
+        "frames": len(ds),
+        "poses": ds.has_poses,
+        "sensor": _sensor_summary(frame.sensor),
+        "fields": [f for f in ("intensity", "ring", "time") if getattr(frame, f) is not None],
+    }
+    source = ds.source_info() if hasattr(ds, "source_info") else {}
+    info.update(source)
+    shown = set(source.get("derived sensor", {}).get("warnings", []))
+    notes = []
+    for w in caught:
+        if issubclass(w.category, DataWarning):
+            if str(w.message) not in shown:
+                notes.append(str(w.message))
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    if notes:
+        info["warnings"] = notes
+    info.update({f"first frame {k}": v for k, v in _cloud_summary(frame.points).items()})
+    return info
 
 
 def _describe_payload(data: bytes, registry: Registry) -> dict:
@@ -74,15 +124,56 @@ def _describe_payload(data: bytes, registry: Registry) -> dict:
     return info
 
 
-def _describe_store(path: Path) -> dict:
-    from lwbench.store import ResultStore
+# Columns lwbench's results table has had since schema 1 (what inspect and the leaderboard read).
+_STORE_COLUMNS = frozenset(
+    {"key", "kind", "dataset", "dataset_id", "frame", "codec", "codec_version", "params", "status", "metrics"}
+)
 
-    with ResultStore(path) as store:
-        rows = list(store.rows())
+
+def _read_only(path: Path) -> sqlite3.Connection:
+    """A connection that cannot write: ``mode=ro`` (the path URI-quoted). A WAL database in a
+    folder we may not write to cannot be opened so (SQLite needs its ``-shm`` file); it is then
+    read as ``immutable``, which is right for a store no run is writing to."""
+    uri = path.resolve().as_uri()
+    conn = sqlite3.connect(f"{uri}?mode=ro", uri=True)
+    try:
+        conn.execute("SELECT 1 FROM sqlite_master LIMIT 1").fetchall()
+    except sqlite3.OperationalError:
+        conn.close()
+        conn = sqlite3.connect(f"{uri}?mode=ro&immutable=1", uri=True)
+    return conn
+
+
+def is_results_store(path: str | Path) -> bool:
+    """Whether ``path`` is an lwbench results store, judged by its schema -- a ``results`` table
+    with lwbench's columns and a ``meta`` table holding ``schema_version`` -- through a
+    read-only connection, so that asking about someone's SQLite file (a ROS 2 bag) never
+    changes it."""
+    try:
+        with closing(_read_only(Path(path))) as conn:
+            tables = {r[0] for r in conn.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+            if not {"results", "meta"} <= tables:
+                return False
+            if not _STORE_COLUMNS <= {r[1] for r in conn.execute("PRAGMA table_info(results)")}:
+                return False
+            if not {"key", "value"} <= {r[1] for r in conn.execute("PRAGMA table_info(meta)")}:
+                return False
+            return conn.execute("SELECT 1 FROM meta WHERE key = 'schema_version'").fetchone() is not None
+    except sqlite3.Error:
+        return False
+
+
+def _describe_store(path: Path) -> dict:
+    with closing(_read_only(path)) as conn:
+        (version,) = conn.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()
+        rows, failed = conn.execute("SELECT COUNT(*), COALESCE(SUM(status = 'failed'), 0) FROM results").fetchone()
+        datasets = [r[0] for r in conn.execute("SELECT DISTINCT dataset FROM results ORDER BY dataset")]
+        codecs = [r[0] for r in conn.execute("SELECT DISTINCT codec FROM results ORDER BY codec")]
     return {
         "kind": "lwbench results store (SQLite)",
-        "rows": len(rows),
-        "failed rows": sum(r.status == "failed" for r in rows),
-        "datasets": sorted({r.dataset for r in rows}),
-        "codecs": sorted({r.codec for r in rows}),
+        "schema version": version,
+        "rows": rows,
+        "failed rows": failed,
+        "datasets": datasets,
+        "codecs": codecs,
     }
