@@ -10,6 +10,7 @@ from lwbench.deps import import_open3d
 from lwbench.device import DEVICE_PARAM, resolve_device
 from lwbench.errors import (
     DataFormatError,
+    DataWarning,
     DecodeError,
     InvalidFrameError,
     LwbenchError,
@@ -37,6 +38,7 @@ __all__ = [
     "CodecKind",
     "DEVICE_PARAM",
     "DataFormatError",
+    "DataWarning",
     "Dataset",
     "DecodeError",
     "Evaluation",

@@ -1,53 +1,197 @@
-"""Built-in file loaders: KITTI odometry folders and folders (or single files) of PCD/PLY/BIN.
+"""Built-in file loaders: KITTI odometry folders and folders (or single files) of scans.
 
 They are registered through the ``lwbench`` entry point ``files`` like any plugin. Each loader
-is one small class; the choice of sensor model is shared:
+is one small class; what they share is how scans are picked from a folder and how the sensor
+model is chosen.
 
-- ``sensor=auto`` (default): ``sensor.json`` beside the scans (written by lwbench), else an
-  Ouster ``sensor_metadata.json``, else a model derived from the first scan
-  (:meth:`SensorModel.from_points`, using the ``ring`` field when the files have one);
-- ``sensor=<preset>``: one of the presets (``vlp16``, ``hdl64e``, ``os1-128``).
+Scans are taken from the layout, never from "every file that ends in .bin": KITTI's
+``velodyne/NNNNNN.bin``, or the files of a folder that share one naming scheme (``000012.bin``,
+``scan_0012.pcd``); other scan-like files (``times_000012.bin``, ``map.pcd``) are skipped with a
+:class:`~lwbench.derive.DataWarning` that names them (``lwbench inspect`` lists them too).
+
+The ``sensor`` parameter:
+
+- ``auto`` (default): ``sensor.json`` beside the scans (written by lwbench), else an Ouster
+  ``sensor_metadata.json``, else a model derived from the first scan
+  (:func:`lwbench.derive.derive_sensor`: the ``ring`` field, else the point order, else -- with
+  a warning -- the elevation histogram). Every later scan is then checked to come from the same
+  sensor: a folder that mixes sensors fails on the first scan that does not match;
+- a preset name (``vlp16``, ``hdl64e``, ``os1-128``);
+- a path to an lwbench ``sensor.json`` or an Ouster ``sensor_metadata.json``.
 """
 
 from __future__ import annotations
 
-import json
+import re
+import warnings
+from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from lwbench.dataset import Dataset
+from lwbench.derive import Derivation, derive_sensor, sensor_mismatch
+from lwbench.errors import DataWarning, ParameterError
 from lwbench.hookspecs import hookimpl
 from lwbench.io import (
+    NUSCENES_SUFFIX,
+    SCAN_SUFFIXES,
     SENSOR_FILE,
     DataFormatError,
     ScanArrays,
     read_kitti_bin,
     read_kitti_calib,
     read_kitti_poses,
-    read_ouster_metadata,
     read_point_file,
     read_pose_file,
+    read_sensor_file,
+    scan_suffix,
 )
-from lwbench.sensor import SensorModel, get_sensor
+from lwbench.sensor import SENSOR_PRESETS, SensorModel, get_sensor
 from lwbench.types import Frame, Param
 
-__all__ = ["KittiDataset", "PointFileDataset"]
+__all__ = ["KittiDataset", "PointFileDataset", "SensorChoice", "pick_scans", "KITTI_LAYOUTS"]
 
-_SENSOR_PARAM = Param("sensor", "str", "auto", "sensor model: auto or a preset name")
+_SENSOR_PARAM = Param(
+    "sensor", "str", "auto", "sensor model: auto, a preset name, or a sensor.json / Ouster sensor_metadata.json path"
+)
 _RATE_PARAM = Param("rate_hz", "float", 10.0, "frame rate, when the data does not say", low=0.01)
-POINT_SUFFIXES = (".pcd", ".ply", ".bin")
+POINT_SUFFIXES = SCAN_SUFFIXES
+KITTI_LAYOUTS = (
+    "layouts that load: SEQ/velodyne/NNNNNN.bin (+ SEQ/poses.txt, calib.txt, times.txt); the official "
+    "odometry tree ROOT/sequences/NN/velodyne/NNNNNN.bin + ROOT/poses/NN.txt (path=ROOT/sequences/NN, or "
+    "path=ROOT with sequence=NN); a folder of .bin scans named one way (NNNNNN.bin)"
+)
+FILES_LAYOUTS = (
+    "layouts that load: one scan file (.pcd, .ply, .xyz, .bin, nuScenes .pcd.bin) or a folder of such "
+    "scans named one way, with an optional pose file (*pose*.txt or poses_file=...)"
+)
 
 
-def _sensor_for(folder: Path, name: str, first: ScanArrays, rate_hz: float) -> SensorModel:
-    if name != "auto":
-        return get_sensor(name)
-    if (folder / SENSOR_FILE).exists():
-        return SensorModel.from_dict(json.loads((folder / SENSOR_FILE).read_text()))
-    if (folder / "sensor_metadata.json").exists():
-        return read_ouster_metadata(folder / "sensor_metadata.json")
-    return SensorModel.from_points(first.points, ring=first.ring, rate_hz=rate_hz, name="derived")
+# ------------------------------------------------------------------------------ picking scans
+def _natural_key(path: Path) -> list[Any]:
+    """Sort ``scan_2`` before ``scan_10``: poses are matched to scans by order."""
+    return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", path.name.lower())]
+
+
+def _scheme(path: Path) -> str:
+    """A file's naming scheme: its name with every run of digits as ``#``."""
+    return re.sub(r"\d+", "#", path.name.lower())
+
+
+def pick_scans(candidates: list[Path], where: Path, loader: str) -> tuple[list[Path], list[Path]]:
+    """The scans among ``candidates`` (the files of one folder) and the scan-like files skipped.
+
+    One format (the most common one) and one naming scheme: names that are just a number
+    (``000012.bin``, KITTI's) win, else the scheme most files share. Names without digits
+    (``source.pcd``, ``target.pcd``) are all taken when no file is numbered. A tie is an error:
+    guessing which half of a folder is the data is how a per-point-times file became a scan.
+    """
+    candidates = [p for p in candidates if scan_suffix(p) is not None]
+    by_kind: dict[str, list[Path]] = {}
+    for p in candidates:
+        by_kind.setdefault(scan_suffix(p), []).append(p)
+    if not by_kind:
+        return [], []
+    ranked = sorted(by_kind.items(), key=lambda kv: -len(kv[1]))
+    if len(ranked) > 1 and len(ranked[0][1]) == len(ranked[1][1]):
+        counts = ", ".join(f"{len(v)} {k}" for k, v in ranked)
+        raise DataFormatError(f"{loader}: {where} mixes scan formats ({counts}); point at one file or split the folder")
+    kind, files = ranked[0]
+    schemes: dict[str, list[Path]] = {}
+    for p in files:
+        schemes.setdefault(_scheme(p), []).append(p)
+    numbered = {s: v for s, v in schemes.items() if "#" in s}
+    if numbered:
+        plain = f"#{kind}"
+        if plain in numbered:
+            chosen = numbered[plain]
+        else:
+            best = sorted(numbered.items(), key=lambda kv: -len(kv[1]))
+            if len(best) > 1 and len(best[0][1]) == len(best[1][1]):
+                names = ", ".join(s.replace("#", "N") for s, _ in best)
+                raise DataFormatError(
+                    f"{loader}: {where} holds scans named in several ways ({names}) and none is the most "
+                    "common; move the other files out or point at a folder with one kind"
+                )
+            chosen = best[0][1]
+    else:
+        chosen = files
+    taken = set(chosen)
+    skipped = sorted((p for p in candidates if p not in taken), key=_natural_key)
+    if skipped:
+        shown = ", ".join(p.name for p in skipped[:5]) + (f", ... ({len(skipped)} in all)" if len(skipped) > 5 else "")
+        warnings.warn(
+            f"{loader}: {len(skipped)} file(s) in {where} are not scans of this layout and were skipped: {shown}",
+            DataWarning,
+            stacklevel=3,
+        )
+    return sorted(chosen, key=_natural_key), skipped
+
+
+def _numbers(files: list[Path]) -> list[int] | None:
+    """Each scan's frame number when every name is one (KITTI: ``000012.bin`` is frame 12)."""
+    stems = [p.name.split(".")[0] for p in files]
+    return [int(s) for s in stems] if all(s.isdigit() for s in stems) else None
+
+
+def _rows_for(files: list[Path], n_rows: int, what: Path, loader: str) -> list[int]:
+    """Which row of a per-frame file (poses, times) belongs to each scan: the scan's frame
+    number when scans are numbered (a folder holding frames 100-199 uses rows 100-199), else
+    its position."""
+    numbers = _numbers(files)
+    rows = numbers if numbers is not None else list(range(len(files)))
+    if numbers is None and n_rows != len(files):
+        raise DataFormatError(f"{loader}: {n_rows} rows in {what} for {len(files)} scans")
+    if max(rows) >= n_rows:
+        raise DataFormatError(f"{loader}: {what} has {n_rows} rows, but scan {files[rows.index(max(rows))].name} "
+                              f"is frame {max(rows)}")
+    return rows
+
+
+# ---------------------------------------------------------------------------- sensor choice
+@dataclass(frozen=True)
+class SensorChoice:
+    """The dataset's sensor model and where it came from (for ``lwbench inspect``)."""
+
+    sensor: SensorModel
+    source: str
+    derivation: Derivation | None = None
+    derived_from: Path | None = None
+
+    def describe(self) -> dict[str, Any]:
+        info: dict[str, Any] = {"sensor source": self.source}
+        if self.derivation is not None:
+            info["derived sensor"] = self.derivation.describe()
+        return info
+
+
+def _choose_sensor(value: str, folder: Path, first: Path, read, rate_hz: float) -> SensorChoice:
+    if value == "auto":
+        for name in (SENSOR_FILE, "sensor_metadata.json"):
+            if (folder / name).is_file():
+                return SensorChoice(read_sensor_file(folder / name), f"{name} beside the scans")
+        scan = read(first)
+        if len(scan.points) < 100:
+            raise DataFormatError(
+                f"{first}: {len(scan.points)} points is too few to derive a sensor model from; "
+                "pass --dataset-param sensor=<preset or sensor.json path>"
+            )
+        d = derive_sensor(scan.points, ring=scan.ring, rate_hz=rate_hz, name="derived")
+        return SensorChoice(d.sensor, f"derived from {first.name} ({d.method})", d, first)
+    if value.lower() in SENSOR_PRESETS:
+        return SensorChoice(get_sensor(value), f"preset {value.lower()}")
+    path = Path(value).expanduser()
+    if not path.is_file() and not path.is_absolute() and (folder / path).is_file():
+        path = folder / path
+    if path.is_file():
+        return SensorChoice(read_sensor_file(path), f"file {path}")
+    raise ParameterError(
+        f"sensor={value!r}: neither a preset ({', '.join(sorted(SENSOR_PRESETS))}), auto, nor an existing "
+        "sensor.json / sensor_metadata.json file"
+    )
 
 
 def _frame(scan: ScanArrays, sensor: SensorModel, index: int, stamp: float, pose) -> Frame:
@@ -66,15 +210,30 @@ def _frame(scan: ScanArrays, sensor: SensorModel, index: int, stamp: float, pose
 class _ScanFiles(Dataset):
     """What both loaders share: a sorted list of scan files, optional poses, one sensor model.
 
-    Subclasses set ``files``, ``folder`` and ``poses`` in ``__init__`` and name their reader."""
+    Subclasses set ``files``, ``folder``, ``poses`` (and ``skipped``, ``layout``, ``pose_source``)
+    in ``__init__`` and name their reader."""
 
     files: list[Path]
     folder: Path
     poses: np.ndarray | None
+    skipped: list[Path]
+    layout: str
+    pose_source: str | None
+
+    def __init__(self, **params: Any) -> None:
+        super().__init__(**params)
+        self.skipped, self.pose_source = [], None
+        self._checked: set[int] = set()
 
     @staticmethod
     def read(path: Path) -> ScanArrays:
         return read_point_file(path)
+
+    def _named_sensor_now(self) -> None:
+        """A sensor the user named (preset, file) is resolved at once, so a typo is one clear
+        error from the constructor rather than a failure on every frame."""
+        if self.config["sensor"] != "auto":
+            _ = self.sensor_choice
 
     def __len__(self) -> int:
         return len(self.files)
@@ -84,62 +243,154 @@ class _ScanFiles(Dataset):
         return self.poses is not None
 
     @cached_property
+    def sensor_choice(self) -> SensorChoice:
+        return _choose_sensor(self.config["sensor"], self.folder, self.files[0], self.read, self.config["rate_hz"])
+
+    @property
     def sensor(self) -> SensorModel:
-        return _sensor_for(self.folder, self.config["sensor"], self.read(self.files[0]), self.config["rate_hz"])
+        return self.sensor_choice.sensor
 
     def _stamp(self, index: int) -> float:
         return index / self.sensor.rate_hz
 
+    def _check_same_sensor(self, index: int, scan: ScanArrays) -> None:
+        """A scan's own derived model against the one derived from the first scan: a folder of
+        two sensors must not silently share the first one's grid. Costs one derivation
+        (~40 ms on a 120k-point scan) per scan, once."""
+        choice = self.sensor_choice
+        if choice.derivation is None or index in self._checked or self.files[index] == choice.derived_from:
+            return
+        if len(scan.points) >= 100:
+            mine = derive_sensor(scan.points, ring=scan.ring, rate_hz=self.sensor.rate_hz, warn=False)
+            why = sensor_mismatch(choice.derivation, mine)
+            if why is not None:
+                first = choice.derivation
+
+                def what(d: Derivation) -> str:
+                    return f"{d.sensor.n_beams} beams, {d.sensor.azimuth_step_deg:.4f} deg azimuth step ({d.method})"
+
+                raise DataFormatError(
+                    f"{self.name}: {self.files[index].name} is not from the sensor of {choice.derived_from.name}, "
+                    f"whose derived model this dataset uses ({what(first)}); {self.files[index].name}: "
+                    f"{what(mine)} -- {why}. Keep one sensor's scans per folder, or name the sensor with "
+                    "--dataset-param sensor=<preset or sensor.json path>"
+                )
+        self._checked.add(index)
+
     def frame(self, index: int) -> Frame:
+        scan = self.read(self.files[index])
+        self._check_same_sensor(index, scan)
         pose = self.poses[index] if self.poses is not None else None
-        return _frame(self.read(self.files[index]), self.sensor, index, self._stamp(index), pose)
+        return _frame(scan, self.sensor, index, self._stamp(index), pose)
+
+    def source_info(self) -> dict[str, Any]:
+        """How this dataset was read: layout, poses, skipped files and the sensor's source."""
+        info: dict[str, Any] = {"layout": self.layout, "poses from": self.pose_source or "none"}
+        if self.skipped:
+            info["skipped files"] = [p.name for p in self.skipped]
+        return {**info, **self.sensor_choice.describe()}
+
+
+# ------------------------------------------------------------------------------------ KITTI
+@dataclass(frozen=True)
+class _KittiLayout:
+    sequence_dir: Path
+    scan_dir: Path
+    poses: Path | None
+    description: str
+
+
+def _kitti_layout(root: Path, sequence: str | None) -> _KittiLayout:
+    if sequence is not None:
+        seqs = root / "sequences"
+        seq = next((seqs / s for s in (sequence, sequence.zfill(2)) if (seqs / s).is_dir()), None)
+        if seq is None:
+            have = sorted(p.name for p in seqs.iterdir() if p.is_dir()) if seqs.is_dir() else []
+            raise DataFormatError(
+                f"kitti: no sequence {sequence!r} under {seqs}"
+                + (f" (sequences: {', '.join(have)})" if have else "")
+                + f"; {KITTI_LAYOUTS}"
+            )
+        poses = root / "poses" / f"{seq.name}.txt"
+        return _KittiLayout(seq, seq / "velodyne", poses if poses.is_file() else None,
+                            f"KITTI odometry tree, sequence {seq.name}")
+    if (root / "velodyne").is_dir():
+        poses = root / "poses.txt"
+        official = root.parent.parent / "poses" / f"{root.name}.txt"
+        if not poses.is_file() and root.parent.name == "sequences" and official.is_file():
+            return _KittiLayout(root, root / "velodyne", official, f"KITTI odometry tree, sequence {root.name}")
+        return _KittiLayout(root, root / "velodyne", poses if poses.is_file() else None, "KITTI sequence folder")
+    if (root / "sequences").is_dir() and not any(scan_suffix(p) == ".bin" for p in root.iterdir()):
+        have = sorted(p.name for p in (root / "sequences").iterdir() if (p / "velodyne").is_dir())
+        raise DataFormatError(
+            f"kitti: {root} is a KITTI odometry root (sequences {', '.join(have) or 'none with velodyne/'}); "
+            f"pass --dataset-param sequence=NN or point at {root / 'sequences' / 'NN'}"
+        )
+    poses = root / "poses.txt"
+    return _KittiLayout(root, root, poses if poses.is_file() else None, "folder of .bin scans")
 
 
 class KittiDataset(_ScanFiles):
-    """KITTI odometry layout: ``velodyne/*.bin`` (or ``*.bin`` in the folder itself),
-    optional ``poses.txt`` (camera frame) + ``calib.txt`` (``Tr``) and ``times.txt``.
+    """KITTI odometry layout: ``velodyne/NNNNNN.bin`` (or numbered ``*.bin`` in the folder
+    itself), optional ``poses.txt`` (camera frame) + ``calib.txt`` (``Tr``) and ``times.txt``;
+    or the official tree, ``sequences/NN`` with its poses in ``poses/NN.txt``.
 
     KITTI's ground truth is the left camera's pose; the LiDAR's is ``Tr^-1 · P · Tr``. Without
     ``calib.txt`` the poses are taken as sensor poses (as lwbench and Ouster samples write them).
+    Numbered scans take the pose and time rows of their number.
     """
 
     name = "kitti"
-    description = "KITTI odometry folder (velodyne .bin + poses.txt + calib.txt)"
+    description = "KITTI odometry folder (velodyne .bin + poses.txt + calib.txt) or sequences/NN tree"
     params = (
-        Param("path", "str", None, "sequence folder"),
+        Param("path", "str", None, "sequence folder (or the odometry root, with sequence)"),
+        Param("sequence", "str", None, "with path = the odometry root: the sequence (00..21)"),
         _SENSOR_PARAM,
         _RATE_PARAM,
     )
 
-    def __init__(self, **params) -> None:
+    def __init__(self, **params: Any) -> None:
         super().__init__(**params)
         if not self.config["path"]:
             raise DataFormatError("kitti: the path parameter is required")
-        self.root = self.folder = Path(self.config["path"])
-        scan_dir = self.root / "velodyne" if (self.root / "velodyne").is_dir() else self.root
-        self.files = sorted(scan_dir.glob("*.bin"))
+        self.root = Path(self.config["path"])
+        if not self.root.is_dir():
+            raise DataFormatError(f"kitti: {self.root} is not a folder; {KITTI_LAYOUTS}")
+        layout = _kitti_layout(self.root, self.config["sequence"])
+        self.folder, self.layout = layout.sequence_dir, layout.description
+        candidates = [p for p in layout.scan_dir.iterdir() if p.is_file()] if layout.scan_dir.is_dir() else []
+        self.files, self.skipped = pick_scans(
+            [p for p in candidates if scan_suffix(p) in (".bin", NUSCENES_SUFFIX)], layout.scan_dir, "kitti"
+        )
         if not self.files:
-            raise DataFormatError(f"kitti: no .bin scans in {scan_dir}")
-        self.poses = self._load_poses()
-        times = self.root / "times.txt"
-        self.times = np.loadtxt(times, ndmin=1) if times.exists() else None
+            raise DataFormatError(f"kitti: no .bin scans in {layout.scan_dir}; {KITTI_LAYOUTS}")
+        self.poses = self._load_poses(layout.poses)
+        self._named_sensor_now()
+        times = self.folder / "times.txt"
+        self.times = None
+        if times.is_file():
+            stamps = np.loadtxt(times, ndmin=1)
+            self.times = stamps[_rows_for(self.files, len(stamps), times, "kitti")]
 
-    def _load_poses(self) -> np.ndarray | None:
-        path = self.root / "poses.txt"
-        if not path.exists():
+    def _load_poses(self, path: Path | None) -> np.ndarray | None:
+        if path is None:
             return None
         poses = read_kitti_poses(path)
-        if len(poses) < len(self.files):
-            raise DataFormatError(f"kitti: {len(poses)} poses for {len(self.files)} scans in {path}")
-        calib = self.root / "calib.txt"
-        tr = read_kitti_calib(calib) if calib.exists() else None
+        poses = poses[_rows_for(self.files, len(poses), path, "kitti")]
+        calib = self.folder / "calib.txt"
+        tr = read_kitti_calib(calib) if calib.is_file() else None
+        self.pose_source = f"{path}" + (" (camera frame; LiDAR pose via calib.txt Tr)" if tr is not None else "")
         if tr is not None:
             poses = np.linalg.inv(tr) @ poses @ tr
         return poses
 
     @classmethod
     def sniff(cls, path: Path) -> bool:
-        return path.is_dir() and (any(path.glob("*.bin")) or any((path / "velodyne").glob("*.bin")))
+        if not path.is_dir():
+            return False
+        if (path / "velodyne").is_dir() or any((path / "sequences").glob("*/velodyne")):
+            return True
+        return any(scan_suffix(p) == ".bin" for p in path.iterdir())
 
     @staticmethod
     def read(path: Path) -> ScanArrays:
@@ -149,14 +400,20 @@ class KittiDataset(_ScanFiles):
         return float(self.times[index]) if self.times is not None else super()._stamp(index)
 
 
+# ------------------------------------------------------------------------------ point files
+def _stem(path: Path) -> str:
+    suffix = scan_suffix(path) or path.suffix
+    return path.name[: len(path.name) - len(suffix)]
+
+
 class PointFileDataset(_ScanFiles):
-    """A folder of PCD/PLY/BIN scans (sorted by name), or one scan file, with an optional pose
-    file (``poses_file``; default: the one ``*pose*.txt`` in the folder, if exactly one).
-    KITTI, TUM and stamped-KITTI pose files are recognised; keyed files are matched to scans
-    by file stem (or by order when the keys are time stamps)."""
+    """A folder of PCD/PLY/XYZ/BIN scans (one format and naming scheme, in natural order), or
+    one scan file, with an optional pose file (``poses_file``; default: the one ``*pose*.txt`` in
+    the folder, if exactly one). KITTI, TUM and stamped-KITTI pose files are recognised; keyed
+    files are matched to scans by file stem (or by order when the keys are time stamps)."""
 
     name = "files"
-    description = "folder of PCD/PLY/BIN scans or a single scan file, optional KITTI/TUM poses"
+    description = "folder of PCD/PLY/XYZ/BIN scans or a single scan file, optional KITTI/TUM poses"
     params = (
         Param("path", "str", None, "folder or file"),
         Param("poses_file", "str", None, "pose file (KITTI 3x4 rows or TUM)"),
@@ -164,20 +421,24 @@ class PointFileDataset(_ScanFiles):
         _RATE_PARAM,
     )
 
-    def __init__(self, **params) -> None:
+    def __init__(self, **params: Any) -> None:
         super().__init__(**params)
         if not self.config["path"]:
             raise DataFormatError("files: the path parameter is required")
         self.root = Path(self.config["path"])
         if self.root.is_file():
-            self.files = [self.root]
-            self.folder = self.root.parent
+            if scan_suffix(self.root) is None:
+                raise DataFormatError(f"files: {self.root} is not a scan file; {FILES_LAYOUTS}")
+            self.files, self.folder, self.layout = [self.root], self.root.parent, "single scan file"
+        elif self.root.is_dir():
+            self.folder, self.layout = self.root, "folder of scan files"
+            self.files, self.skipped = pick_scans([p for p in self.root.iterdir() if p.is_file()], self.root, "files")
         else:
-            self.folder = self.root
-            self.files = sorted(p for p in self.root.iterdir() if p.suffix.lower() in POINT_SUFFIXES)
+            raise DataFormatError(f"files: {self.root} does not exist")
         if not self.files:
-            raise DataFormatError(f"files: no {'/'.join(POINT_SUFFIXES)} scans in {self.root}")
+            raise DataFormatError(f"files: no scans in {self.root}; {FILES_LAYOUTS}")
         self.poses = self._load_poses()
+        self._named_sensor_now()
 
     def _load_poses(self) -> np.ndarray | None:
         given = self.config["poses_file"]
@@ -191,9 +452,10 @@ class PointFileDataset(_ScanFiles):
         else:
             return None
         keys, poses = read_pose_file(path)
+        self.pose_source = str(path)
         if keys is not None:
             by_key = dict(zip(keys, poses, strict=True))
-            stems = [f.stem for f in self.files]
+            stems = [_stem(f) for f in self.files]
             if all(s in by_key for s in stems):
                 return np.stack([by_key[s] for s in stems])
         if len(poses) != len(self.files):
@@ -203,8 +465,8 @@ class PointFileDataset(_ScanFiles):
     @classmethod
     def sniff(cls, path: Path) -> bool:
         if path.is_file():
-            return path.suffix.lower() in POINT_SUFFIXES
-        return path.is_dir() and any(p.suffix.lower() in (".pcd", ".ply") for p in path.iterdir())
+            return scan_suffix(path) is not None
+        return path.is_dir() and any(scan_suffix(p) not in (None, ".bin") for p in path.iterdir())
 
 
 @hookimpl

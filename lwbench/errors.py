@@ -19,6 +19,7 @@ __all__ = [
     "PluginError",
     "MissingDependencyError",
     "StoreError",
+    "DataWarning",
 ]
 
 
@@ -60,3 +61,8 @@ class MissingDependencyError(LwbenchError, ImportError):
 
 class StoreError(LwbenchError):
     """A file given as a results store is not one (or has a schema this lwbench cannot read)."""
+
+
+class DataWarning(UserWarning):
+    """Data that loaded, but with a guess or a skip the user should know about (a beam table
+    derived from an elevation histogram, files a loader skipped)."""

@@ -2,14 +2,18 @@
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
 
+from lwbench.errors import DataFormatError, DataWarning
 from lwbench.payload import MAGIC, Payload
 from lwbench.registry import Registry
+from lwbench.sensor import SensorModel
+from lwbench.store import is_results_store
 
-__all__ = ["describe"]
+__all__ = ["describe", "is_results_store", "WHAT_INSPECT_READS"]
 
 
 def _cloud_summary(points: np.ndarray) -> dict:
@@ -24,30 +28,74 @@ def _cloud_summary(points: np.ndarray) -> dict:
     }
 
 
+WHAT_INSPECT_READS = (
+    "lwbench inspect reads lwbench payloads, lwbench results stores, scan files (.bin, .pcd.bin, .pcd, "
+    ".ply, .xyz) and dataset folders (KITTI layout, folders of scan files)"
+)
+
+
 def describe(path: Path, registry: Registry) -> dict:
+    """What ``path`` holds, read without writing a byte (a store is opened read-only)."""
     if path.is_file():
         with open(path, "rb") as fh:
             head = fh.read(16)
         if head.startswith(MAGIC):
             return _describe_payload(path.read_bytes(), registry)
         if head.startswith(b"SQLite format 3"):
+            if not is_results_store(path):
+                raise DataFormatError(
+                    f"{path}: an SQLite database, but not an lwbench results store (no results/meta tables "
+                    f"of lwbench's schema; a ROS 2 bag?); {WHAT_INSPECT_READS}"
+                )
             return _describe_store(path)
     for name, cls in registry.datasets.items():
         if cls.sniff(path):
-            ds = cls(path=str(path))
-            frame = ds[0]
-            info = {
-                "kind": f"scan data ({name} loader)",
-                "frames": len(ds),
-                "poses": ds.has_poses,
-                "sensor": frame.sensor.to_dict(),
-                "fields": [f for f in ("intensity", "ring", "time") if getattr(frame, f) is not None],
-            }
-            info.update({f"first frame {k}": v for k, v in _cloud_summary(frame.points).items()})
-            return info
-    from lwbench.types import LwbenchError
+            return _describe_dataset(path, name, cls)
+    raise DataFormatError(f"{path}: not something lwbench can read; {WHAT_INSPECT_READS}")
 
-    raise LwbenchError(f"{path}: not an lwbench payload, results store, or scan file/folder lwbench can read")
+
+def _sensor_summary(sensor: SensorModel) -> dict:
+    compact = sensor.to_dict()
+    if "preset" in compact:
+        return compact
+    return {
+        "name": sensor.name,
+        "beams": sensor.n_beams,
+        "elevations_deg": [round(e, 3) for e in sensor.elevations_deg],
+        "azimuth_step_deg": round(sensor.azimuth_step_deg, 5),
+        "columns": sensor.n_azimuth,
+        "range_m": [sensor.min_range, sensor.max_range],
+        "rate_hz": sensor.rate_hz,
+    }
+
+
+def _describe_dataset(path: Path, name: str, cls) -> dict:
+    # The loaders' DataWarnings (skipped files, a guessed beam table) belong in the report.
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", DataWarning)
+        ds = cls(path=str(path))
+        frame = ds[0]
+    info: dict = {
+        "kind": f"scan data ({name} loader)",
+        "frames": len(ds),
+        "poses": ds.has_poses,
+        "sensor": _sensor_summary(frame.sensor),
+        "fields": [f for f in ("intensity", "ring", "time") if getattr(frame, f) is not None],
+    }
+    source = ds.source_info() if hasattr(ds, "source_info") else {}
+    info.update(source)
+    shown = set(source.get("derived sensor", {}).get("warnings", []))
+    notes = []
+    for w in caught:
+        if issubclass(w.category, DataWarning):
+            if str(w.message) not in shown:
+                notes.append(str(w.message))
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    if notes:
+        info["warnings"] = notes
+    info.update({f"first frame {k}": v for k, v in _cloud_summary(frame.points).items()})
+    return info
 
 
 def _describe_payload(data: bytes, registry: Registry) -> dict:
@@ -78,11 +126,16 @@ def _describe_store(path: Path) -> dict:
     from lwbench.store import ResultStore
 
     with ResultStore(path, readonly=True) as store:
-        rows = list(store.rows())
+        conn = store.conn
+        (version,) = conn.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()
+        rows, failed = conn.execute("SELECT COUNT(*), COALESCE(SUM(status = 'failed'), 0) FROM results").fetchone()
+        datasets = [r[0] for r in conn.execute("SELECT DISTINCT dataset FROM results ORDER BY dataset")]
+        codecs = [r[0] for r in conn.execute("SELECT DISTINCT codec FROM results ORDER BY codec")]
     return {
         "kind": "lwbench results store (SQLite)",
-        "rows": len(rows),
-        "failed rows": sum(r.status == "failed" for r in rows),
-        "datasets": sorted({r.dataset for r in rows}),
-        "codecs": sorted({r.codec for r in rows}),
+        "schema version": version,
+        "rows": rows,
+        "failed rows": failed,
+        "datasets": datasets,
+        "codecs": codecs,
     }

@@ -247,52 +247,16 @@ class SensorModel:
         name: str = "derived",
         bin_deg: float = 0.02,
     ) -> SensorModel:
-        """Estimate a sensor model from one real scan.
+        """Estimate a sensor model from one real scan (see :mod:`lwbench.derive`, which also
+        says *how* it was derived: :func:`lwbench.derive.derive_sensor`).
 
-        With a per-point ``ring`` the beam elevations are the per-ring medians (exact). Without
-        it, beams are the peaks of the elevation histogram: spinning LiDARs put their returns on
-        a few discrete elevations, so the histogram is a comb. The azimuth step is the median
-        gap between consecutive returns of the densest beam; the range window is the data's.
+        The beam table comes from the ``ring`` field when given, else from the point order
+        (ring-major or firing-major), else -- with a warning, as a guess -- from the peaks of the
+        elevation histogram. The azimuth step follows from the steps between neighbouring returns.
         """
-        p = np.asarray(points, dtype=np.float64)
-        if len(p) < 100:
-            raise ValueError(f"need at least 100 points to derive a sensor model, got {len(p)}")
-        r = np.linalg.norm(p, axis=1)
-        ok = r > 0
-        p, r = p[ok], r[ok]
-        elev = np.degrees(np.arcsin(p[:, 2] / r))
-        az = np.degrees(np.arctan2(p[:, 1], p[:, 0]))
-        if ring is not None:
-            ring = np.asarray(ring)[ok]
-            beams = np.unique(ring)
-            table = np.array([np.median(elev[ring == b]) for b in beams])
-            labels = np.searchsorted(beams, ring)
-        else:
-            from scipy.signal import find_peaks
+        from lwbench.derive import derive_sensor
 
-            # Margins so the outermost beams are interior peaks (find_peaks ignores the edges).
-            lo, hi = elev.min() - 10 * bin_deg, elev.max() + 10 * bin_deg
-            hist, edges = np.histogram(elev, bins=max(8, int((hi - lo) / bin_deg)), range=(lo, hi))
-            smooth = np.convolve(hist, np.ones(3) / 3, mode="same")
-            # Real beams are >= ~0.3 deg apart (HDL-64E: 1/3 deg); closer peaks are one beam whose
-            # elevation wobbles along the sweep (laser origins are offset from the sensor axis).
-            peaks, _ = find_peaks(smooth, height=max(5.0, 0.02 * smooth.max()), distance=int(0.25 / bin_deg))
-            table = (edges[peaks] + edges[peaks + 1]) / 2
-            mid = (table[1:] + table[:-1]) / 2
-            labels = np.searchsorted(mid, elev)
-        counts = np.bincount(labels, minlength=len(table))
-        densest = np.sort(az[labels == np.argmax(counts)])
-        gaps = np.diff(densest)
-        gaps = gaps[gaps > 1e-4]
-        step = float(np.median(gaps)) if len(gaps) else 0.2
-        return cls(
-            name=name,
-            elevations_deg=tuple(float(t) for t in np.sort(table)),
-            azimuth_step_deg=360.0 / max(1, round(360.0 / step)),
-            min_range=float(np.floor(r.min() * 10) / 10),
-            max_range=float(np.ceil(r.max())),
-            rate_hz=rate_hz,
-        )
+        return derive_sensor(points, ring=ring, rate_hz=rate_hz, name=name, bin_deg=bin_deg).sensor
 
 
 def _hdl64e_table() -> tuple[float, ...]:

@@ -181,7 +181,17 @@ def _schema_version(conn: sqlite3.Connection) -> int | None:
 
 
 def _connect_readonly(path: Path) -> sqlite3.Connection:
-    return sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True, timeout=30.0)
+    """A connection that cannot write (``mode=ro``). A WAL database in a folder we may not write
+    to cannot be opened so (SQLite needs its ``-shm`` file); it is then read as ``immutable``,
+    which is right for a store no run is writing to."""
+    uri = path.resolve().as_uri()
+    conn = sqlite3.connect(f"{uri}?mode=ro", uri=True, timeout=30.0)
+    try:
+        conn.execute("SELECT 1 FROM sqlite_master LIMIT 1").fetchall()
+    except sqlite3.OperationalError:
+        conn.close()
+        conn = sqlite3.connect(f"{uri}?mode=ro&immutable=1", uri=True, timeout=30.0)
+    return conn
 
 
 def is_results_store(path: str | Path) -> bool:

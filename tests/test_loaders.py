@@ -1,12 +1,17 @@
-"""Each loader on the real samples: point counts as the samples' README states them."""
+"""Each loader on the real samples (point counts as the samples' README states them), and the
+layouts on generated data: which files are scans, poses, sensors."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
+from _scans import spinning_scan, write_bin
 
-from lwbench import import_open3d
+from lwbench import SensorModel, get_sensor, import_open3d
 from lwbench.datasets import KittiDataset, PointFileDataset
+from lwbench.errors import DataFormatError, DataWarning, ParameterError
 from lwbench.io import read_kitti_bin, read_pose_file, write_kitti_sequence
 
 o3d = import_open3d()
@@ -92,3 +97,149 @@ def test_tum_pose_file(tmp_path):
     assert keys == ["0.0", "0.1"]
     np.testing.assert_allclose(poses[1][:3, 3], [1, 2, 4])
     np.testing.assert_allclose(poses[1][:2, :2], [[0, -1], [1, 0]], atol=1e-6)
+
+
+# ------------------------------------------------------------------ layouts (generated data)
+def _kitti_seq(folder, n: int = 2, *, sensor: str = "vlp16", first: int = 0):
+    (folder / "velodyne").mkdir(parents=True)
+    for i in range(first, first + n):
+        write_bin(folder / "velodyne" / f"{i:06d}.bin", spinning_scan(sensor, order="firing", seed=i))
+    return folder
+
+
+def _pose_rows(n: int) -> np.ndarray:
+    rows = np.tile(np.eye(4)[:3].reshape(-1), (n, 1))
+    rows[:, 3] = np.arange(n)  # frame i is at x = i
+    return rows
+
+
+def test_kitti_takes_scans_from_the_layout_and_names_the_skipped_files(tmp_path):
+    seq = _kitti_seq(tmp_path / "seq")
+    for i in range(2):  # per-point times beside the scans: 4 bytes per point
+        np.zeros(1001, "<f4").tofile(seq / "velodyne" / f"times_{i:06d}.bin")
+    with pytest.warns(DataWarning, match=r"2 file\(s\).*skipped: times_000000.bin, times_000001.bin"):
+        ds = KittiDataset(path=str(seq))
+    assert [p.name for p in ds.files] == ["000000.bin", "000001.bin"]
+    assert [p.name for p in ds.skipped] == ["times_000000.bin", "times_000001.bin"]
+    assert ds.source_info()["skipped files"] == ["times_000000.bin", "times_000001.bin"]
+    assert len(ds[1]) == len(spinning_scan("vlp16", order="firing", seed=1))
+
+
+def test_a_flat_folder_of_bins_takes_one_naming_scheme(tmp_path):
+    for i in range(3):
+        write_bin(tmp_path / f"scan_{i}.bin", spinning_scan("vlp16", order="firing", seed=i))
+    np.zeros(10, "<f4").tofile(tmp_path / "times_0.bin")
+    with pytest.warns(DataWarning, match="times_0.bin"):
+        ds = KittiDataset(path=str(tmp_path))
+    assert [p.name for p in ds.files] == ["scan_0.bin", "scan_1.bin", "scan_2.bin"]
+    np.zeros(10, "<f4").tofile(tmp_path / "times_1.bin")
+    np.zeros(10, "<f4").tofile(tmp_path / "times_2.bin")  # now two schemes of 3 files each
+    with pytest.raises(DataFormatError, match=r"named in several ways \((scan|times)_N.bin, (scan|times)_N.bin\)"):
+        KittiDataset(path=str(tmp_path))
+
+
+def test_scans_are_in_natural_order_so_poses_match(tmp_path):
+    for i in (1, 2, 10):
+        np.savetxt(tmp_path / f"scan_{i}.xyz", spinning_scan("vlp16", order="firing", seed=i)[:200])
+    np.savetxt(tmp_path / "poses.txt", _pose_rows(3))
+    ds = PointFileDataset(path=str(tmp_path))
+    assert [p.name for p in ds.files] == ["scan_1.xyz", "scan_2.xyz", "scan_10.xyz"]
+    assert ds.has_poses and PointFileDataset.sniff(tmp_path)
+
+
+def test_numbered_scans_take_the_pose_and_time_rows_of_their_number(tmp_path):
+    seq = _kitti_seq(tmp_path / "seq", first=5)
+    np.savetxt(seq / "poses.txt", _pose_rows(10))
+    np.savetxt(seq / "times.txt", np.arange(10) * 0.1)
+    ds = KittiDataset(path=str(seq))
+    assert ds[0].pose[0, 3] == 5 and ds[1].pose[0, 3] == 6
+    assert ds[1].timestamp == pytest.approx(0.6)
+    np.savetxt(seq / "poses.txt", _pose_rows(6))
+    with pytest.raises(DataFormatError, match="6 rows, but scan 000006.bin is frame 6"):
+        KittiDataset(path=str(seq))
+
+
+def _official_tree(root):
+    seq = _kitti_seq(root / "sequences" / "00", n=3)
+    (root / "poses").mkdir()
+    np.savetxt(root / "poses" / "00.txt", _pose_rows(3))
+    (seq / "calib.txt").write_text("P0: " + " ".join(["0"] * 12) + "\nTr: " + " ".join(
+        f"{v:.1f}" for v in np.eye(4)[:3].reshape(-1)) + "\n")
+    np.savetxt(seq / "times.txt", np.arange(3) * 0.1)
+    _kitti_seq(root / "sequences" / "11", n=1)  # a test sequence: no poses
+    return root
+
+
+def test_official_kitti_odometry_tree_loads_its_poses(tmp_path):
+    root = _official_tree(tmp_path / "dataset")
+    by_folder = KittiDataset(path=str(root / "sequences" / "00"))
+    by_param = KittiDataset(path=str(root), sequence="00")
+    for ds in (by_folder, by_param):
+        assert len(ds) == 3 and ds.has_poses
+        assert ds[2].pose[0, 3] == 2
+        assert ds.source_info()["poses from"].startswith(str(root / "poses" / "00.txt"))
+    assert not KittiDataset(path=str(root), sequence="11").has_poses
+    assert KittiDataset.sniff(root)
+
+
+def test_a_kitti_layout_that_does_not_load_says_which_do(tmp_path):
+    root = _official_tree(tmp_path / "dataset")
+    with pytest.raises(DataFormatError, match="sequence=NN"):
+        KittiDataset(path=str(root))
+    with pytest.raises(DataFormatError, match=r"no sequence '07'.*sequences: 00, 11.*layouts that load"):
+        KittiDataset(path=str(root), sequence="07")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(DataFormatError, match="layouts that load: SEQ/velodyne/NNNNNN.bin"):
+        KittiDataset(path=str(tmp_path / "empty"))
+
+
+def test_scans_of_two_sensors_in_one_folder_are_refused(tmp_path):
+    write_bin(tmp_path / "000000.bin", spinning_scan("vlp16", order="ring", ranges=(4.0, 9.0)))
+    write_bin(tmp_path / "000001.bin", spinning_scan("hdl64e", order="ring", ranges=(4.0, 9.0)))
+    ds = KittiDataset(path=str(tmp_path))
+    assert len(ds[0]) > 0 and ds.sensor.n_beams == 16
+    with pytest.raises(DataFormatError, match=r"000001.bin is not from the sensor of 000000.bin.*16 beams.*64 beams"):
+        ds[1]
+    # naming the sensor is the way out: then there is nothing to derive, nothing to compare
+    assert len(KittiDataset(path=str(tmp_path), sensor="hdl64e")[1]) > 0
+
+
+def test_sensor_param_takes_a_preset_a_sensor_json_or_ouster_metadata(tmp_path):
+    seq = _kitti_seq(tmp_path / "seq")
+    assert KittiDataset(path=str(seq), sensor="hdl64e").sensor == get_sensor("hdl64e")
+    custom = SensorModel("mine", (-10.0, 0.0, 10.0), 0.5, 0.2, 30.0, 5.0)
+    (tmp_path / "mine.json").write_text(json.dumps(custom.to_dict()))
+    assert PointFileDataset(path=str(seq / "velodyne"), sensor=str(tmp_path / "mine.json")).sensor == custom
+    (tmp_path / "meta.json").write_text(json.dumps({"beam_altitude_angles": list(np.linspace(16, -16, 32)),
+                                                    "data_format": {"columns_per_frame": 2048}}))
+    ds = KittiDataset(path=str(seq), sensor=str(tmp_path / "meta.json"))
+    assert (ds.sensor.n_beams, ds.sensor.n_azimuth) == (32, 2048)
+    assert ds.source_info()["sensor source"] == f"file {tmp_path / 'meta.json'}"
+    with pytest.raises(ParameterError, match="neither a preset"):
+        KittiDataset(path=str(seq), sensor="hdl-64")  # at once, not on every frame
+
+
+def test_derived_sensor_records_how(tmp_path):
+    seq = _kitti_seq(tmp_path / "seq")
+    info = KittiDataset(path=str(seq)).source_info()
+    assert info["sensor source"] == "derived from 000000.bin (firing-major order)"
+    assert info["derived sensor"]["beams"] == 16 and info["derived sensor"]["columns"] == 3600
+
+
+def test_a_folder_of_nuscenes_sweeps_loads_with_rings(tmp_path):
+    from test_formats import NUSCENES_NAME, _nuscenes_points
+
+    for i in range(2):
+        _nuscenes_points().tofile(tmp_path / NUSCENES_NAME.replace("1533151603547590", f"153315160354759{i}"))
+    assert PointFileDataset.sniff(tmp_path) and not KittiDataset.sniff(tmp_path)
+    ds = PointFileDataset(path=str(tmp_path))
+    f = ds[1]
+    assert len(f) == 8000 and f.ring is not None and f.ring.max() == 31
+    assert ds.sensor_choice.derivation.method == "ring field" and ds.sensor.n_beams == 32
+
+
+def test_kitti00_derived_sensor_is_the_hdl64e(real_data):
+    ds = KittiDataset(path=str(real_data / "kitti00_frames0-1"))
+    assert ds.sensor.n_beams == 64 and 2000 <= ds.sensor.n_azimuth <= 2100
+    assert ds.sensor_choice.derivation.method == "ring-major order"
+    assert len(ds[1]) == 124_605  # frame 1 is checked against frame 0's model: same sensor
