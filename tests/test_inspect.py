@@ -55,7 +55,8 @@ def test_a_results_store_is_recognised_by_its_schema_and_read_without_writing(tm
     before = _digest(path)
     assert is_results_store(path)
     info = describe(path, get_registry())
-    assert (info["rows"], info["failed rows"], info["codecs"], info["schema version"]) == (2, 1, ["raw"], str(SCHEMA_VERSION))
+    got = (info["rows"], info["failed rows"], info["codecs"], info["schema version"])
+    assert got == (2, 1, ["raw"], str(SCHEMA_VERSION))
     assert _digest(path) == before
 
 
