@@ -1,10 +1,14 @@
 """Small synthetic scans for tests -- lwbench's and a plugin author's own.
 
-The simulator casts every ray through a range-image cell centre; real sensors do not (firings
-drift against any fixed grid, each laser has its own azimuth and elevation offset, ranges are
-noisy). :func:`room_scan` produces scans of the second kind in a few milliseconds, with no
-ray-casting library, so a test can check that a codec or metric does not depend on where cell
-edges fall.
+Every scan here is intersected in closed form (no ray-casting library), costs milliseconds and
+is exactly reproducible from its seed:
+
+- :func:`room_scan` -- a box room; with ``off_grid`` (the default) it looks like a real sensor's
+  scan: firings drift against any fixed grid and each laser has its own azimuth and elevation
+  offset, so a test can check that a codec or metric does not depend on where cell edges fall
+  (the simulator casts every ray through a range-image cell centre; real sensors do not);
+- :func:`tunnel_scan` -- an elliptic mine tunnel with a floor and rough walls (VSGP's setting);
+- :func:`cylinder_scan` -- a smooth vertical wall around the sensor, optionally only half of it.
 """
 
 from __future__ import annotations
@@ -12,10 +16,10 @@ from __future__ import annotations
 import numpy as np
 
 from lwbench.frame import Frame
-from lwbench.geometry import unit_directions
-from lwbench.sensor import SensorModel
+from lwbench.geometry import spherical, unit_directions
+from lwbench.sensor import SensorModel, get_sensor
 
-__all__ = ["room_scan", "ROOM_HALF_EXTENT"]
+__all__ = ["room_scan", "tunnel_scan", "tunnel_ranges", "cylinder_scan", "ROOM_HALF_EXTENT"]
 
 # A 6 m x 4 m x 2.4 m room centred on the sensor: walls, floor and ceiling; every ray hits.
 ROOM_HALF_EXTENT = (3.0, 2.0, 1.2)
@@ -68,3 +72,83 @@ def room_scan(
     pts = (dirs * r[:, None])[keep].astype(np.float32)
     ring = np.repeat(np.arange(n_b), n_a)[keep].astype(np.uint16) if with_ring else None
     return Frame(pts, sensor, index=index, ring=ring, intensity=np.full(len(pts), 0.5, np.float32))
+
+
+def _ellipse_hit(d: np.ndarray, origin: np.ndarray, a: float, b: float) -> np.ndarray:
+    """Distance along each unit ray ``d`` from ``origin`` (inside) to ``y^2/a^2 + z^2/b^2 = 1``."""
+    dy, dz = d[..., 1], d[..., 2]
+    oy, oz = origin[1], origin[2]
+    qa = dy**2 / a**2 + dz**2 / b**2
+    qb = 2 * (oy * dy / a**2 + oz * dz / b**2)
+    qc = oy**2 / a**2 + oz**2 / b**2 - 1.0  # < 0 inside
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (-qb + np.sqrt(np.maximum(qb**2 - 4 * qa * qc, 0.0))) / (2 * qa)
+    return np.where(qa > 1e-12, t, np.inf)
+
+
+def tunnel_ranges(
+    sensor: SensorModel,
+    *,
+    seed: int = 0,
+    half_width: float = 2.5,
+    half_height: float = 2.2,
+    floor: bool = True,
+    roughness: float = 0.04,
+    noise: float = 0.01,
+    dropout: float = 0.01,
+) -> np.ndarray:
+    """Range image ``(n_beams, n_azimuth)`` of an elliptic tunnel; 0 = no return.
+
+    The tunnel runs along a random heading; the sensor sits off-centre; the wall's radius is
+    modulated by a few seeded sinusoids in direction space (rock roughness, relative amplitude
+    ``roughness``), and each range gets Gaussian noise ``noise`` (m) and random dropouts.
+    Returns beyond the sensor's max range are zeros, like a real sensor's.
+    """
+    rng = np.random.default_rng(seed)
+    a = half_width * rng.uniform(0.85, 1.15)
+    b = half_height * rng.uniform(0.85, 1.15)
+    heading = rng.uniform(-np.pi, np.pi)
+    origin = np.array([0.0, rng.uniform(-0.3, 0.3) * a, rng.uniform(-0.2, 0.1) * b])
+    dirs = sensor.ray_directions()  # (B, A, 3), sensor frame
+    c, s = np.cos(heading), np.sin(heading)
+    rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])  # sensor -> tunnel frame
+    d = dirs @ rot.T
+    t = _ellipse_hit(d, origin, a, b)
+    if floor:
+        floor_z = -0.8 * b
+        with np.errstate(divide="ignore", invalid="ignore"):
+            tf = np.where(d[..., 2] < -1e-6, (floor_z - origin[2]) / d[..., 2], np.inf)
+        t = np.minimum(t, tf)
+    _, az, el = spherical(d.reshape(-1, 3))
+    az, el = az.reshape(t.shape), el.reshape(t.shape)
+    bump = np.zeros_like(t)
+    for _ in range(6):
+        ka, ke = rng.integers(1, 9), rng.uniform(0, 12)
+        bump += np.sin(ka * az + ke * el + rng.uniform(0, 2 * np.pi)) / 6
+    t = t * (1 + roughness * bump) + rng.normal(0.0, noise, t.shape)
+    t[(t < sensor.min_range) | (t > sensor.max_range) | ~np.isfinite(t)] = 0.0
+    t[rng.random(t.shape) < dropout] = 0.0
+    return t.astype(np.float32)
+
+
+def tunnel_scan(seed: int = 0, sensor: SensorModel | None = None, **kwargs: float) -> Frame:
+    """A :class:`Frame` of :func:`tunnel_ranges` (VLP-16 at 10 m unless a sensor is given)."""
+    sensor = sensor or get_sensor("vlp16")
+    ranges = tunnel_ranges(sensor, seed=seed, **kwargs)
+    return Frame(sensor.unproject(ranges), sensor, index=seed, pose=np.eye(4))
+
+
+def cylinder_scan(radius: float = 4.0, sensor: SensorModel | None = None, half: bool = False) -> Frame:
+    """A noiseless vertical cylinder wall of ``radius`` around the sensor (smooth surface).
+
+    ``half=True`` keeps only the azimuths in ``[0, pi)``: the other half of the scan is free
+    space, which the decoder's variance filter must recognise.
+    """
+    sensor = sensor or get_sensor("vlp16")
+    el = sensor.elevations_rad[:, None]
+    az = sensor.azimuths_rad()[None, :]
+    ranges = np.broadcast_to(radius / np.cos(el), (sensor.n_beams, sensor.n_azimuth)).copy()
+    if half:
+        ranges[:, (az[0] < 0)] = 0.0
+    ranges[ranges > sensor.max_range] = 0.0
+    return Frame(sensor.unproject(ranges.astype(np.float32)), sensor, pose=np.eye(4))

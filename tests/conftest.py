@@ -2,16 +2,15 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
-import numpy as np
 import pytest
+from _real import real_data_dir
 
 from lwbench import Frame, SensorModel, get_sensor
+from lwbench.testing import cylinder_scan
 
-REPO = Path(__file__).resolve().parents[1]
-REAL_DATA = Path(os.environ.get("LWBENCH_REAL_DATA", REPO.parent / "shared" / "data" / "real"))
+REAL_DATA = real_data_dir()
 
 
 @pytest.fixture(scope="session")
@@ -19,11 +18,6 @@ def real_data() -> Path:
     if not REAL_DATA.is_dir():
         pytest.skip(f"real LiDAR samples not found at {REAL_DATA} (set LWBENCH_REAL_DATA)")
     return REAL_DATA
-
-
-def cell_centre_points(sensor: SensorModel, ranges: np.ndarray) -> np.ndarray:
-    """Points exactly on the centre ray of each cell with a positive range."""
-    return sensor.unproject(ranges)
 
 
 @pytest.fixture
@@ -35,9 +29,4 @@ def tiny_sensor() -> SensorModel:
 @pytest.fixture
 def vlp16_frame() -> Frame:
     """A synthetic VLP-16 scan of a cylinder wall (radius 5 m), every ray a return."""
-    sensor = get_sensor("vlp16")
-    dirs = sensor.ray_directions()
-    horiz = np.linalg.norm(dirs[..., :2], axis=-1)
-    ranges = (5.0 / horiz).astype(np.float32)
-    pts = cell_centre_points(sensor, ranges)
-    return Frame(pts, sensor, index=0)
+    return cylinder_scan(5.0, get_sensor("vlp16"))

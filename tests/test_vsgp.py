@@ -13,10 +13,10 @@ from lwbench_plugins.vsgp import VSGPCodec
 from lwbench_plugins.vsgp.decoder import auto_stride, predict_grid, query_grid
 from lwbench_plugins.vsgp.encoder import FitConfig, fit_scan
 from lwbench_plugins.vsgp.gp import Hyper, collapsed_bound, rq_cross
-from lwbench_plugins.vsgp.synthetic import cylinder_frame, tunnel_frame
 from lwbench_plugins.vsgp.wire import HEADER, body_size
 
 from lwbench import Frame, Payload, PayloadError, get_sensor
+from lwbench.testing import cylinder_scan, tunnel_scan
 
 
 def range_scores(frame: Frame, points: np.ndarray) -> tuple[float, float, float]:
@@ -38,7 +38,7 @@ def one_thread():
 
 @pytest.fixture(scope="module")
 def tunnel() -> Frame:
-    return tunnel_frame(seed=3)
+    return tunnel_scan(seed=3)
 
 
 @pytest.fixture(scope="module")
@@ -49,7 +49,7 @@ def tunnel_f32(tunnel) -> tuple[bytes, np.ndarray]:
 
 
 def test_cylinder_wall_round_trip_within_2mm():
-    frame = cylinder_frame(radius=4.0)
+    frame = cylinder_scan(radius=4.0)
     codec = VSGPCodec(device="cpu")
     pts = VSGPCodec(device="cpu").decode(codec.encode(frame))
     rmsd, coverage, false = range_scores(frame, pts)
@@ -68,7 +68,7 @@ def test_tunnel_round_trip_accuracy_and_ratio(tunnel, tunnel_f32):
 
 
 def test_variance_filter_removes_the_free_half():
-    frame = cylinder_frame(radius=4.0, half=True)  # returns only for azimuth in [0, pi)
+    frame = cylinder_scan(radius=4.0, half=True)  # returns only for azimuth in [0, pi)
     pts = VSGPCodec(device="cpu").decode(VSGPCodec(device="cpu").encode(frame))
     az = np.arctan2(pts[:, 1], pts[:, 0])
     # Cells within a lengthscale of the edge may survive; the free half must not.
@@ -163,7 +163,7 @@ def test_empty_and_tiny_scans():
     sensor = get_sensor("vlp16")
     empty = Frame(np.zeros((0, 3), np.float32), sensor)
     assert VSGPCodec(device="cpu").decode(VSGPCodec(device="cpu").encode(empty)).shape == (0, 3)
-    few = cylinder_frame(radius=4.0).subset(np.arange(0, 57600, 400))  # 144 points < M
+    few = cylinder_scan(radius=4.0).subset(np.arange(0, 57600, 400))  # 144 points < M
     pts = VSGPCodec(device="cpu").decode(VSGPCodec(device="cpu").encode(few))
     assert pts.ndim == 2 and pts.shape[1] == 3
 
@@ -252,7 +252,7 @@ def test_lwbench_run_stores_vsgp_rows(tmp_path):
     seq = tmp_path / "seq"
     (seq / "velodyne").mkdir(parents=True)
     for i in range(2):
-        frame = tunnel_frame(seed=10 + i)
+        frame = tunnel_scan(seed=10 + i)
         xyzi = np.hstack([frame.points, np.zeros((len(frame), 1), np.float32)])
         xyzi.astype(np.float32).tofile(seq / "velodyne" / f"{i:06d}.bin")
     (seq / "sensor.json").write_text(json.dumps(get_sensor("vlp16").to_dict()))

@@ -5,24 +5,24 @@ alternation and stores the ratio of their fastest round trips in ``extra_info["v
 Minimums and interleaving, because on a shared machine the noise only ever adds time and
 drifts; the ratio is the figure to compare, the absolute time only its context.
 
-    /work/venv/bin/pytest tests/benchmarks/test_bench_codecs.py -m benchmark --benchmark-enable
+    python -m pytest tests/benchmarks/test_bench_codecs.py -m benchmark --benchmark-enable
 """
 
 from __future__ import annotations
 
 import time
 from functools import cache
-from pathlib import Path
 
 import numpy as np
 import pytest
+from _real import kitti_frame0
 from lwbench_plugins.draco import DracoCodec
 from lwbench_plugins.rangeimage import RangeImageCodec
 from lwbench_plugins.voxel import VoxelSelector
 
 from lwbench import Codec, Frame, get_sensor
 
-KITTI = Path("/work/shared/data/real/kitti00_frames0-1/000000.bin")
+KITTI = kitti_frame0()
 
 CODECS: dict[str, tuple[type[Codec], dict]] = {
     "draco-14": (DracoCodec, {"quantization_bits": 14}),

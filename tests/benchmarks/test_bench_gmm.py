@@ -6,7 +6,7 @@ the same process right before ours; both run on one thread (torch and BLAS), bec
 2-core machine is shared and two spinning threads per process measure the neighbours' load,
 not the code. ``extra_info`` holds both times, the ratio and both log-likelihoods.
 
-    /work/venv/bin/pytest tests/benchmarks/test_bench_gmm.py -m benchmark --benchmark-enable -s
+    python -m pytest tests/benchmarks/test_bench_gmm.py -m benchmark --benchmark-enable -s
 """
 
 from __future__ import annotations

@@ -5,9 +5,9 @@ per scan; the targets are 10x faster (0.11 / 0.18 / 0.76 s). The machine is shar
 figure is also given against Open3D's ``compute_iss_keypoints`` timed in the same process,
 interleaved run by run (``extra_info["vs_open3d_iss"]``: median of the per-run ratios).
 
-    /work/venv/bin/pytest tests/benchmarks/test_bench_keypoints.py -m benchmark --benchmark-enable
-    /work/venv/bin/python tests/benchmarks/test_bench_keypoints.py [RUNS]   # the docs table
-    /work/venv/bin/python tests/benchmarks/test_bench_keypoints.py agree    # ISS vs Open3D
+    python -m pytest tests/benchmarks/test_bench_keypoints.py -m benchmark --benchmark-enable
+    python tests/benchmarks/test_bench_keypoints.py [RUNS]   # the docs table
+    python tests/benchmarks/test_bench_keypoints.py agree    # ISS vs Open3D
 """
 
 from __future__ import annotations
@@ -23,7 +23,10 @@ from lwbench_plugins.keypoints import ISS, SIFT3D, Harris3D, KeypointSelector
 
 from lwbench import Frame, get_sensor, import_open3d
 
-KITTI = Path(__file__).resolve().parents[2].parent / "shared/data/real/kitti00_frames0-1/000000.bin"
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests/, when run as a program
+from _real import kitti_frame0  # noqa: E402
+
+KITTI = kitti_frame0()
 BUDGET = {"points": 10_000}  # PocoNet keeps 8,000-10,000 points per KITTI scan
 SELECTORS: dict[str, type[KeypointSelector]] = {"harris3d": Harris3D, "iss": ISS, "sift3d": SIFT3D}
 TARGET_S = {"harris3d": 0.11, "iss": 0.18, "sift3d": 0.76}

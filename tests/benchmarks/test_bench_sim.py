@@ -7,7 +7,7 @@ over the same rays from the same pose: ``extra_info["vs_cast_rays"]`` is simulat
 from the fastest round. Scene building is excluded (once per process, reported apart as
 ``build_s``).
 
-    /work/venv/bin/pytest tests/benchmarks/test_bench_sim.py -m benchmark --benchmark-enable
+    python -m pytest tests/benchmarks/test_bench_sim.py -m benchmark --benchmark-enable
 """
 
 from __future__ import annotations

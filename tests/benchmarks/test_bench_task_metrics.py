@@ -5,8 +5,8 @@ a minute. The machine is shared, so each figure is also given against a referenc
 same process: one plain Open3D point-to-plane ICP between two consecutive raw scans (voxel
 0.2 m, normals r = 0.5 m: MEASURED.md's setup), in ``extra_info["vs_icp_pair"]``.
 
-    /work/venv/bin/pytest tests/benchmarks/test_bench_task_metrics.py -m benchmark --benchmark-enable
-    /work/venv/bin/python tests/benchmarks/test_bench_task_metrics.py [FRAMES]   # the docs table
+    python -m pytest tests/benchmarks/test_bench_task_metrics.py -m benchmark --benchmark-enable
+    python tests/benchmarks/test_bench_task_metrics.py [FRAMES]   # the docs table
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@ stores its time over a reference timed in the same process (one 57,600 x 500 RQ 
 evaluation, the decoder's dominant workload) in ``extra_info["x_reference"]``, and the median
 per-stage times of the codec in ``extra_info["stages_ms"]``, because the machine is shared.
 
-    /work/venv/bin/pytest tests/benchmarks/test_bench_vsgp.py -m benchmark --benchmark-enable
+    python -m pytest tests/benchmarks/test_bench_vsgp.py -m benchmark --benchmark-enable
 """
 
 from __future__ import annotations
@@ -15,15 +15,15 @@ from functools import cache
 import numpy as np
 import pytest
 from lwbench_plugins.vsgp import VSGPCodec
-from lwbench_plugins.vsgp.experiments import reference_seconds
-from lwbench_plugins.vsgp.synthetic import tunnel_frame
+from lwbench_plugins.vsgp.gp import reference_seconds
 
 from lwbench import Frame
+from lwbench.testing import tunnel_scan
 
 
 @cache
 def frames() -> list[Frame]:
-    return [tunnel_frame(seed=s) for s in range(20)]
+    return [tunnel_scan(seed=s) for s in range(20)]
 
 
 def _stages(codec: VSGPCodec, calls: list[dict[str, float]]) -> dict[str, float]:

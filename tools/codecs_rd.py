@@ -4,9 +4,9 @@ This is the error ``rangeimage`` adds even in ``mode=lossless`` (which reproduce
 image bit for bit): each kept return is put back on one ray per cell -- the cell centre
 (``refine=none``) or its beam's fitted ray (``refine=beam``) -- and returns that shared a cell
 with a nearer one are dropped. The rate-distortion tables themselves come from
-``docs/codecs_rd.sh`` (``lwbench run`` + ``lwbench leaderboard``).
+``tools/codecs_rd.sh`` (``lwbench run`` + ``lwbench leaderboard``).
 
-    /work/venv/bin/python docs/codecs_rd.py
+    python tools/codecs_rd.py PATH/TO/shared/data/real
 """
 
 from __future__ import annotations
@@ -19,21 +19,27 @@ from lwbench_plugins.rangeimage.beams import fit_beam_table, read_beam_table, un
 from lwbench import SensorModel, get_sensor
 from lwbench.datasets import KittiDataset
 
-REAL = Path("/work/shared/data/real")
-CASES = [
-    ("ouster_os1-128_seq3", {"path": str(REAL / "ouster_os1-128_seq3")}, "sensor_metadata.json beam table", None),
-    ("ouster_os1-128_seq3", {"path": str(REAL / "ouster_os1-128_seq3")}, "os1-128 preset (uniform)", "os1-128"),
-    ("kitti00_frames0-1", {"path": str(REAL / "kitti00_frames0-1"), "sensor": "hdl64e"}, "hdl64e preset", None),
-    ("kitti00_frames0-1", {"path": str(REAL / "kitti00_frames0-1"), "sensor": "hdl64e"},
-     "derived from the scan", "derived"),
-]
+
+def cases(real: Path) -> list[tuple[str, dict, str, str | None]]:
+    """(folder, loader parameters, label, grid) for each comparison."""
+    ouster, kitti = str(real / "ouster_os1-128_seq3"), str(real / "kitti00_frames0-1")
+    return [
+        ("ouster_os1-128_seq3", {"path": ouster}, "sensor_metadata.json beam table", None),
+        ("ouster_os1-128_seq3", {"path": ouster}, "os1-128 preset (uniform)", "os1-128"),
+        ("kitti00_frames0-1", {"path": kitti, "sensor": "hdl64e"}, "hdl64e preset", None),
+        ("kitti00_frames0-1", {"path": kitti, "sensor": "hdl64e"}, "derived from the scan", "derived"),
+    ]
 
 
 def main() -> None:
+    import sys
+
+    if len(sys.argv) != 2:
+        raise SystemExit(__doc__)
     print("| dataset | sensor grid | points | kept (1 per cell) | off-ray mean (m), cell centres "
           "| p95 | off-ray mean (m), refine=beam | p95 |")
     print("|---|---|---|---|---|---|---|---|")
-    for ds_name, params, label, which in CASES:
+    for ds_name, params, label, which in cases(Path(sys.argv[1])):
         frames = list(KittiDataset(**params))
         centre, refined, kept, n = [], [], 0, 0
         for frame in frames:

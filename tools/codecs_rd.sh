@@ -1,12 +1,12 @@
 #!/bin/bash
 # Rate-distortion runs behind docs/codecs.md: draco, rangeimage, voxel (+ raw; VSGP and GMM for
 # context) on the simulated tunnel and the real Ouster / KITTI samples.
-#   STORE=/tmp/rd.sqlite [TARGETS="sim ouster kitti"] [CONTEXT=1] bash docs/codecs_rd.sh
+#   REAL=PATH/TO/shared/data/real STORE=/tmp/rd.sqlite [TARGETS="sim ouster kitti"] [CONTEXT=1] bash tools/codecs_rd.sh
 #   lwbench leaderboard --store /tmp/rd.sqlite --format md --columns bytes,ratio,range_rmsd,coverage,chamfer,encode_ms,decode_ms
 set -euo pipefail
 S=${STORE:-/tmp/rd.sqlite}
-L=${LWBENCH:-/work/venv/bin/lwbench}
-REAL=${REAL:-/work/shared/data/real}
+L=${LWBENCH:-lwbench}
+REAL=${REAL:?set REAL to the folder of real samples}
 run() {  # $1 = dataset; the rest: dataset options
   ds=$1; shift
   $L run --dataset "$ds" "$@" --no-sequence-metrics --store "$S" \

@@ -1,67 +1,64 @@
 """Measurements behind VSGP's defaults (``docs/vsgp.md``), runnable on any KITTI-layout folder.
 
     lwbench simulate tunnel --out /tmp/simtunnel --frames 50
-    python -m lwbench_plugins.vsgp.experiments steps  /tmp/simtunnel --frames 10
-    python -m lwbench_plugins.vsgp.experiments sweep  /tmp/simtunnel --frames 20
-    python -m lwbench_plugins.vsgp.experiments timing /tmp/simtunnel --frames 20
-    python -m lwbench_plugins.vsgp.experiments bodies /tmp/simtunnel --frames 10
-    python -m lwbench_plugins.vsgp.experiments table  /tmp/simtunnel --frames 20 --m 200 300 400 500 600
+    python tools/vsgp_experiments.py steps  /tmp/simtunnel --frames 10
+    python tools/vsgp_experiments.py sweep  /tmp/simtunnel --frames 20
+    python tools/vsgp_experiments.py timing /tmp/simtunnel --frames 20
+    python tools/vsgp_experiments.py bodies /tmp/simtunnel --frames 10
+    python tools/vsgp_experiments.py table  /tmp/simtunnel --frames 20 --m 200 300 400 500 600
 
-Each prints a Markdown table. Scores follow lwbench's range-image definitions (DESIGN.md):
-RMSD over cells where both clouds have a return, coverage, false returns. Timings are medians
-and are also given as a ratio to a reference workload timed in the same process (one
-57,600 x 500 RQ kernel evaluation), because this machine is shared and noisy.
+A development script (not installed): the folder is any dataset lwbench loads. Each command
+prints a Markdown table. Scores are lwbench's own range metrics (``lwbench_metrics.ranges``:
+returns paired by direction; RMSD, coverage, false returns). Timings are medians and are also
+given as a ratio to a reference workload timed in the same process (one 57,600 x 500 RQ kernel
+evaluation), because this machine is shared and noisy.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import time
-from pathlib import Path
 
 import numpy as np
 import torch
+from lwbench_metrics.ranges import RangeMetric, direction_coordinates, pair_by_direction
+from lwbench_plugins.vsgp import VSGPCodec
+from lwbench_plugins.vsgp.decoder import auto_stride, predict_grid, query_grid, variance_mask
+from lwbench_plugins.vsgp.encoder import fit_scan
+from lwbench_plugins.vsgp.gp import reference_seconds
 
-from lwbench import Frame, SensorModel
-
-from . import VSGPCodec
-from .decoder import auto_stride, predict_grid, query_grid, variance_mask
-from .encoder import fit_scan
-from .gp import Hyper, rq_grid
-
-
-def load_frames(folder: str, n: int) -> list[Frame]:
-    """First ``n`` scans of a KITTI-layout folder written by ``lwbench simulate`` (sensor.json)."""
-    root = Path(folder)
-    sensor = SensorModel.from_dict(json.loads((root / "sensor.json").read_text()))
-    files = sorted((root / "velodyne").glob("*.bin"))[:n]
-    return [Frame(np.fromfile(f, dtype=np.float32).reshape(-1, 4)[:, :3], sensor, index=i)
-            for i, f in enumerate(files)]
+from lwbench import CodecKind, Evaluation, Frame
+from lwbench.registry import get_registry
+from lwbench.run import resolve_dataset
 
 
-def scores(frame: Frame, ranges_out: np.ndarray) -> tuple[float, float, float]:
-    """(range RMSD m, coverage, false returns) of a decoded range image against the frame."""
-    a = frame.sensor.project(frame.points).ranges
-    both = (a > 0) & (ranges_out > 0)
-    rmsd = float(np.sqrt(np.mean((a[both] - ranges_out[both]) ** 2))) if both.any() else float("nan")
-    cov = both.sum() / max(1, (a > 0).sum())
-    false = ((ranges_out > 0) & ~(a > 0)).sum() / max(1, (ranges_out > 0).sum())
-    return rmsd, float(cov), float(false)
+def load_frames(path: str, n: int) -> list[Frame]:
+    """The first ``n`` frames of any dataset lwbench loads (a path: the loader is sniffed)."""
+    reg = get_registry()
+    dataset = resolve_dataset(reg, path, {}, 0).build(reg)
+    return [dataset[i] for i in range(min(n, len(dataset)))]
 
 
-def reference_seconds() -> float:
-    """Median time of one 57,600 x 500 RQ kernel evaluation (the decoder's dominant workload)."""
-    az = torch.linspace(-3.1, 3.1, 3600)
-    el = torch.linspace(-0.26, 0.26, 16)
-    z = torch.rand(500, 2)
-    h = Hyper(0.1, 0.035, 1.0, 10.0, 0.01)
-    ts = []
-    for _ in range(5):
-        t = time.perf_counter()
-        rq_grid(az, el, z, h)
-        ts.append(time.perf_counter() - t)
-    return float(np.median(ts))
+def scores(frame: Frame, decoded: np.ndarray) -> tuple[float, float, float]:
+    """(range RMSD m, coverage, false returns) of a decoded cloud: lwbench's range metrics."""
+    ev = Evaluation(frame, b"", np.asarray(decoded, np.float32), CodecKind.REPRESENTATION, {})
+    m = RangeMetric().compute(ev)
+    return (m["range_rmsd"] if m["range_rmsd"] is not None else float("nan")), m["coverage"] or 0.0, \
+        m["false_returns"] or 0.0
+
+
+def pointwise_errors(frame: Frame, decoded: np.ndarray) -> np.ndarray:
+    """|r - r_hat| over every direction pair (the paper's pointwise statistic)."""
+    p, rp = direction_coordinates(frame.points, frame.sensor)
+    q, rq = direction_coordinates(decoded, frame.sensor)
+    partner, _ = pair_by_direction(p, q, frame.sensor, 0.5)
+    ok = partner >= 0
+    return np.abs(rp[ok] - rq[partner[ok]])
+
+
+def grid_cloud(frame: Frame, keep: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """The cloud a variance mask keeps on the sensor's grid (cell-centre rays)."""
+    return frame.sensor.unproject(np.where(keep, r, 0.0).astype(np.float32))
 
 
 def cmd_steps(frames: list[Frame], args: argparse.Namespace) -> None:
@@ -76,8 +73,7 @@ def cmd_steps(frames: list[Frame], args: argparse.Namespace) -> None:
             data = codec.encode(fr)
             enc = time.perf_counter() - t
             tim = dict(codec.last_timings)
-            out = fr.sensor.project(codec.decode(data)).ranges
-            rm, cov, _ = scores(fr, out)
+            rm, cov, _ = scores(fr, codec.decode(data))
             ranges = fr.sensor.project(fr.points).ranges
             res = fit_scan(ranges, fr.sensor, fr.sensor.max_range, codec.fit_config(),
                            torch.device("cpu")) if args.bound else None
@@ -108,7 +104,7 @@ def cmd_sweep(frames: list[Frame], args: argparse.Namespace) -> None:
                 for fr, r, var, scale in cache:
                     keep = variance_mask(var, k_m, k_std, v_floor * scale)
                     keep &= (r >= fr.sensor.min_range) & (r < fr.sensor.max_range)
-                    rows.append(scores(fr, np.where(keep, r, 0.0)))
+                    rows.append(scores(fr, grid_cloud(fr, keep, r)))
                 o = np.array(rows)
                 results.append((v_floor, k_m, k_std, *np.nanmean(o, 0), o[:, 1].min()))
     print("| v_floor | K_m | K_std | range RMSD cm | coverage (mean) | coverage (worst frame) "
@@ -162,8 +158,7 @@ def cmd_bodies(frames: list[Frame], args: argparse.Namespace) -> None:
         for fr in frames:
             codec = VSGPCodec(**{**args.param, "body": fmt, "steps": args.steps[0], "device": "cpu"})
             data = codec.encode(fr)
-            out = fr.sensor.project(codec.decode(data)).ranges
-            rows.append((len(data), *scores(fr, out)))
+            rows.append((len(data), *scores(fr, codec.decode(data))))
         o = np.array(rows)
         base = o[:, 1] if base is None else base
         extra = 1000 * (o[:, 1] - base).mean()
@@ -173,7 +168,7 @@ def cmd_bodies(frames: list[Frame], args: argparse.Namespace) -> None:
 
 def cmd_table(frames: list[Frame], args: argparse.Namespace) -> None:
     """Per-M accuracy with the paper's pointwise statistic too: mean and std of |r - r_hat|
-    over every cell both clouds have, pooled over frames (Table I's "9 +- 10 cm" reads so)."""
+    over every direction pair, pooled over frames (Table I's "9 +- 10 cm" reads so)."""
     print("| M | bytes | range RMSD cm (mean ± std over frames) | pointwise abs error cm (mean ± std) | "
           "coverage | false returns |")
     print("|---|---|---|---|---|---|")
@@ -182,10 +177,8 @@ def cmd_table(frames: list[Frame], args: argparse.Namespace) -> None:
         sizes, rms, errs, covs, fas = [], [], [], [], []
         for fr in frames:
             data = codec.encode(fr)
-            out = fr.sensor.project(codec.decode(data)).ranges
-            a = fr.sensor.project(fr.points).ranges
-            both = (a > 0) & (out > 0)
-            errs.append(np.abs(a[both] - out[both]))
+            out = codec.decode(data)
+            errs.append(pointwise_errors(fr, out))
             rm, cov, fa = scores(fr, out)
             sizes.append(len(data))
             rms.append(rm)

@@ -1,6 +1,6 @@
 """Realism check: simulated scans against a real one, printed as Markdown (for ``docs/sim.md``).
 
-    python -m lwbench_plugins.sim.realism [--kitti PATH_TO_KITTI_BIN] [--every N]
+    python tools/sim_realism.py --real PATH/TO/shared/data/real [--every N]
 
 Urban (HDL-64E) is compared with a real KITTI HDL-64E scan: points per scan, range deciles and
 the share of ground points, defined the same way for both as points less than 0.25 m above the
@@ -19,14 +19,12 @@ import argparse
 from pathlib import Path
 
 import numpy as np
+from lwbench_plugins.sim import SimDataset
 
 from lwbench import import_open3d, read_kitti_bin
 
-from .dataset import SimDataset
-
-REAL = Path(__file__).resolve().parents[2].parent / "shared/data/real"
-KITTI = REAL / "kitti00_frames0-1/000000.bin"
-KITTI_INTENSITY = REAL / "kitti_object_000008/000008.bin"  # has intensity; cropped to +-45 deg ahead
+KITTI = "kitti00_frames0-1/000000.bin"
+KITTI_INTENSITY = "kitti_object_000008/000008.bin"  # has intensity; cropped to +-45 deg ahead
 GROUND_Z = -(1.73 - 0.25)
 DECILES = (10, 20, 30, 40, 50, 60, 70, 80, 90)
 
@@ -73,9 +71,11 @@ def icp_error(source: np.ndarray, target: np.ndarray, truth: np.ndarray) -> tupl
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--kitti", type=Path, default=KITTI, help="a KITTI HDL-64E .bin scan")
+    ap.add_argument("--real", type=Path, required=True, help="the folder of real samples (shared/data/real)")
     ap.add_argument("--every", type=int, default=10, help="use every N-th simulated frame")
     args = ap.parse_args(argv)
+    args.kitti = args.real / KITTI
+    kitti_intensity = args.real / KITTI_INTENSITY
 
     print("| scans | points/scan | range deciles 10..90 % (m) | ground | z > 0 | r > 20 m |")
     print("|---|---|---|---|---|---|")
@@ -98,8 +98,8 @@ def main(argv: list[str] | None = None) -> None:
         )
 
 
-    if KITTI_INTENSITY.exists():
-        real = read_kitti_bin(KITTI_INTENSITY)
+    if kitti_intensity.exists():
+        real = read_kitti_bin(kitti_intensity)
         sim = urban.simulate(0)
         azimuth = np.arctan2(sim.points[:, 1], sim.points[:, 0])
         ahead = (sim.points[:, 0] > 0) & (np.abs(azimuth) < np.radians(45))
@@ -107,7 +107,7 @@ def main(argv: list[str] | None = None) -> None:
         print("| intensity | points | quartiles 10/25/50/75/90 % | mean | median ground / other |")
         print("|---|---|---|---|---|")
         for name, pts, inten in (
-            (f"KITTI object `{KITTI_INTENSITY.name}` (real, camera view)", real.points, real.intensity),
+            (f"KITTI object `{kitti_intensity.name}` (real, camera view)", real.points, real.intensity),
             ("sim urban frame 0, +-45 deg ahead", sim.points[ahead], sim.intensity[ahead]),
         ):
             q = " / ".join(f"{v:.2f}" for v in np.percentile(inten, [10, 25, 50, 75, 90]))
