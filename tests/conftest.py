@@ -30,3 +30,16 @@ def tiny_sensor() -> SensorModel:
 def vlp16_frame() -> Frame:
     """A synthetic VLP-16 scan of a cylinder wall (radius 5 m), every ray a return."""
     return cylinder_scan(5.0, get_sensor("vlp16"))
+
+
+@pytest.fixture(scope="session")
+def kitti_folder(tmp_path_factory) -> Path:
+    """A small dataset the tests write themselves, so the run -> store -> leaderboard path is
+    tested on every machine: three off-grid VLP-16 room scans in KITTI layout (velodyne/*.bin,
+    times.txt, sensor.json), no poses."""
+    from lwbench.io import write_kitti_sequence
+    from lwbench.testing import room_scan
+
+    out = tmp_path_factory.mktemp("kitti") / "seq"
+    frames = [room_scan(get_sensor("vlp16"), seed=11, index=i, dropout=0.02) for i in range(3)]
+    return write_kitti_sequence(frames, out)

@@ -29,16 +29,16 @@ def test_list_json_has_codecs_datasets_metrics_and_providers():
 
 
 @pytest.fixture(scope="module")
-def store(tmp_path_factory, real_data):
+def store(tmp_path_factory, kitti_folder):
     path = tmp_path_factory.mktemp("cli") / "r.sqlite"
-    res = invoke("run", "--dataset", str(real_data / "kitti_object_000008"), "--codec", "raw",
+    res = invoke("run", "--dataset", str(kitti_folder), "--codec", "raw",
                  "--codec", "random", "--param", "random.ratio=0.1,0.3", "--store", str(path))
     assert res.exit_code == 0, res.output
     assert "Leaderboard" in res.stdout and "random(ratio=0.3)" in res.stdout
     return path
 
 
-def test_run_on_a_real_sample_prints_every_core_metric_column(store):
+def test_run_prints_every_core_metric_column(store):
     res = invoke("leaderboard", "--store", str(store), "--format", "md")
     assert res.exit_code == 0
     header = res.stdout.splitlines()[0]
@@ -64,10 +64,10 @@ def test_leaderboard_csv(store):
     assert lines[0].startswith("dataset,dataset_id,codec,params,frames,failures") and len(lines) == 4
 
 
-def test_rerun_is_a_cache_hit(store, real_data):
-    res = invoke("run", "--dataset", str(real_data / "kitti_object_000008"), "--codec", "raw",
+def test_rerun_is_a_cache_hit(store, kitti_folder):
+    res = invoke("run", "--dataset", str(kitti_folder), "--codec", "raw",
                  "--store", str(store))
-    assert "evaluated 0, cached 1 of 1" in res.stdout
+    assert "evaluated 0, cached 3 of 3" in res.stdout
 
 
 @pytest.mark.parametrize(
@@ -86,13 +86,13 @@ def test_user_errors_are_one_clear_line_and_exit_2(args, message):
     assert message in res.output and "Traceback" not in res.output
 
 
-def test_bad_parameter_value_is_a_clear_error(real_data, tmp_path):
-    res = invoke("run", "--dataset", str(real_data / "kitti_object_000008"), "--codec", "random",
+def test_bad_parameter_value_is_a_clear_error(kitti_folder, tmp_path):
+    res = invoke("run", "--dataset", str(kitti_folder), "--codec", "random",
                  "--param", "random.ratio=1.5", "--store", str(tmp_path / "x.sqlite"))
     assert res.exit_code == 2 and "above the maximum" in res.output
 
 
-def test_inspect_payload_scan_and_store(tmp_path, store, real_data, vlp16_frame):
+def test_inspect_payload_scan_and_store(tmp_path, store, kitti_folder, vlp16_frame):
     from lwbench.registry import get_registry
 
     payload = get_registry().codec("raw")().encode(vlp16_frame)
@@ -102,7 +102,7 @@ def test_inspect_payload_scan_and_store(tmp_path, store, real_data, vlp16_frame)
     (tmp_path / "bad.lwb").write_bytes(payload[:-3])
     res = invoke("inspect", str(tmp_path / "bad.lwb"))
     assert res.exit_code == 2 and "checksum" in res.output
-    assert "KITTI" in invoke("inspect", str(real_data / "kitti00_frames0-1")).stdout.upper()
+    assert "KITTI" in invoke("inspect", str(kitti_folder)).stdout.upper()
     assert "results store" in invoke("inspect", str(store)).stdout
 
 
@@ -118,3 +118,85 @@ def test_changed_data_under_the_same_label_is_not_averaged_in(tmp_path):
         entries = build_leaderboard(store)
     assert sorted(e.value("bytes") for e in entries) == [1.0, 3.0]
     assert len({e.dataset for e in entries}) == 2 and not np.isnan(entries[0].value("bytes"))
+
+
+def test_unknown_metric_ids_are_refused_with_the_valid_ones(store):
+    for args in (("--sort", "rmsd"), ("--columns", "bytes,foo")):
+        res = invoke("leaderboard", "--store", str(store), *args)
+        assert res.exit_code == 2 and "unknown metric id" in res.output and "range_rmsd" in res.output
+
+
+def test_columns_are_honoured_in_every_format(store):
+    table = invoke("leaderboard", "--store", str(store), "--columns", "bytes,coverage").stdout
+    header = next(line for line in table.splitlines() if "codec" in line)
+    assert "bytes" in header and "coverage" in header and "chamfer" not in header
+    md = invoke("leaderboard", "--store", str(store), "--format", "md", "--columns", "chamfer").stdout
+    assert "chamfer [m]" in md.splitlines()[0] and "bytes" not in md.splitlines()[0]
+
+
+def test_the_run_prints_what_it_asked_for_not_the_whole_store(store, kitti_folder):
+    res = invoke("run", "--dataset", str(kitti_folder), "--codec", "raw", "--frames", "1", "--store", str(store))
+    assert res.exit_code == 0
+    raw = next(line for line in res.stdout.splitlines() if line.startswith("│ raw"))
+    assert raw.split("│")[2].strip() == "1"  # frames: the one frame this run asked for
+    # The whole store's board pools all three frames of raw, and says that random saw others.
+    board = json.loads(invoke("leaderboard", "--store", str(store), "--format", "json").stdout)
+    assert {d["codec"]: d["frames"] for d in board}["raw"] == 3
+
+
+def test_labels_spell_out_swept_defaults(tmp_path, kitti_folder):
+    store = tmp_path / "sweep.sqlite"
+    res = invoke("run", "--dataset", str(kitti_folder), "--codec", "random", "--param", "random.ratio=0.1,0.2",
+                 "--frames", "1", "--store", str(store))
+    assert res.exit_code == 0
+    board = json.loads(invoke("leaderboard", "--store", str(store), "--format", "json").stdout)
+    assert sorted(d["label"] for d in board) == ["random(ratio=0.1)", "random(ratio=0.2)"]
+
+
+def test_a_narrow_terminal_leaves_columns_out_instead_of_folding_numbers(store, monkeypatch):
+    import io
+
+    from rich.console import Console
+
+    from lwbench import cli
+    from lwbench.leaderboard import build_leaderboard
+    from lwbench.registry import get_registry
+    from lwbench.store import ResultStore
+
+    buf = io.StringIO()
+    monkeypatch.setattr(cli, "console", Console(file=buf, width=90))
+    with ResultStore(store, readonly=True) as results:
+        entries = build_leaderboard(results, info=get_registry().metric_info())
+    cli._print_table(entries, "ratio", None, get_registry().metric_info())
+    out = buf.getvalue()
+    assert "not shown (terminal too narrow)" in out
+    assert all(len(line) <= 90 for line in out.splitlines())
+    # No number is split across lines: every cell of the bytes column reads as one number.
+    rows = [line for line in out.splitlines() if line.startswith("│")]
+    assert rows and all(r.split("│")[4].strip().replace(",", "").isdigit() for r in rows)
+
+
+def test_version():
+    res = invoke("--version")
+    assert res.exit_code == 0 and res.stdout.startswith("lwbench ")
+
+
+def test_a_missing_open3d_is_one_line_and_exit_2(tmp_path, kitti_folder):
+    """With Open3D unimportable, a command that needs it fails with what to install, no traceback."""
+    import os
+    import subprocess
+    import sys
+
+    fake = tmp_path / "fake"
+    (fake / "open3d").mkdir(parents=True)
+    (fake / "open3d" / "__init__.py").write_text("raise ImportError('libusb-1.0.so.0: cannot open shared object file')")
+    env = {**os.environ, "PYTHONPATH": str(fake)}
+    script = "import sys; from lwbench.cli import main; sys.argv = ['lwbench', *sys.argv[1:]]; main()"
+    res = subprocess.run(
+        [sys.executable, "-c", script, "run", "--dataset", str(kitti_folder), "--codec", "raw",
+         "--store", str(tmp_path / "s.sqlite")],
+        env=env, capture_output=True, text=True,
+    )
+    assert res.returncode == 2, res.stderr
+    assert "Traceback" not in res.stderr and "Open3D cannot be imported" in res.stderr
+    assert "failed:" not in res.stdout + res.stderr  # an environment problem is not a codec's failure

@@ -38,9 +38,9 @@ def test_example_plugin_is_listed_with_its_provider(installed):
     assert codecs["half"]["provider"].startswith("lwbench-example-codec")
 
 
-def test_example_plugin_runs_and_lands_on_the_leaderboard(installed, tmp_path, real_data):
+def test_example_plugin_runs_and_lands_on_the_leaderboard(installed, tmp_path, kitti_folder):
     store = tmp_path / "r.sqlite"
-    res = _lwbench(installed, "run", "--dataset", str(real_data / "kitti_object_000008"), "--codec", "half",
+    res = _lwbench(installed, "run", "--dataset", str(kitti_folder), "--codec", "half",
                    "--codec", "raw", "--store", str(store))
     assert res.returncode == 0, res.stderr
     board = json.loads(_lwbench(installed, "leaderboard", "--store", str(store), "--format", "json").stdout)

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from lwbench.codec import Codec, SelectionCodec
-from lwbench.errors import DecodeError, LwbenchError
+from lwbench.errors import DecodeError, LwbenchError, MissingDependencyError
 from lwbench.frame import Frame
 from lwbench.measure import PeakMemory, Stopwatch
 from lwbench.metric import Evaluation
@@ -152,10 +152,14 @@ class Evaluator:
                 for m in self.metrics:
                     try:
                         values.update(m.compute(ev))
+                    except MissingDependencyError:
+                        raise
                     except Exception as exc:  # noqa: BLE001 - a metric's bug fails the row, not the run
                         raise LwbenchError(f"metric {m.name}: {type(exc).__name__}: {exc}") from exc
             extra.update(watch.ms)
             return FrameResult(frame.index, config, "ok", values, extra, None, enc.decoded if keep_decoded else None)
+        except MissingDependencyError:
+            raise  # the machine, not the codec: stop the run with the install hint, record nothing
         except Exception as exc:  # noqa: BLE001 - the failure is the result
             extra["traceback"] = traceback.format_exc(limit=6)
             return FrameResult.failure(frame.index, config, exc, extra)
