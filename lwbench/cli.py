@@ -354,7 +354,7 @@ def leaderboard(
 @app.command()
 def inspect(file: Annotated[Path, typer.Argument(help="A payload, scan file, dataset folder or store.")]) -> None:
     """Say what a file holds: an lwbench payload, a scan, a dataset folder or a results store."""
-    from lwbench.inspect import describe
+    from lwbench.inspection import describe
 
     if not file.exists():
         _fail(f"{file} does not exist")

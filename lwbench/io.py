@@ -1,6 +1,6 @@
 """Reading and writing scans and poses on disk (KITTI layout, PCD/PLY, pose files).
 
-Readers return plain arrays; the dataset classes in :mod:`lwbench.datasets` turn them into
+Readers return plain arrays; the dataset classes in :mod:`lwbench.loaders` turn them into
 frames. The KITTI writer is what ``lwbench simulate`` and the simulator's cache use, so a
 simulated sequence can be fed to any KITTI-reading tool.
 """
@@ -13,10 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
+from lwbench import Frame
 from lwbench.deps import import_open3d
 from lwbench.errors import DataFormatError, DataWarning
 from lwbench.sensor import SensorModel
-from lwbench.types import Frame
 
 __all__ = [
     "ScanArrays",

@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 
 from lwbench.cli import app
 from lwbench.errors import DataFormatError
-from lwbench.inspect import describe, is_results_store
+from lwbench.inspection import describe, is_results_store
 from lwbench.registry import get_registry
 from lwbench.store import SCHEMA_VERSION, ResultRow, ResultStore
 

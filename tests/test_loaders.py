@@ -10,9 +10,9 @@ import pytest
 from _scans import spinning_scan, write_bin
 
 from lwbench import SensorModel, get_sensor, import_open3d
-from lwbench.datasets import KittiDataset, PointFileDataset
 from lwbench.errors import DataFormatError, DataWarning, ParameterError
 from lwbench.io import read_kitti_bin, read_pose_file, write_kitti_sequence
+from lwbench.loaders import KittiDataset, PointFileDataset
 
 o3d = import_open3d()
 

@@ -141,7 +141,7 @@ def test_cached_frame_equals_the_simulated_one(tmp_path):
     fresh = ds.simulate(2)
     assert np.array_equal(fresh.points, again.points) and np.array_equal(fresh.ring, again.ring)
     # The folder is a KITTI sequence that lwbench's own loader reads back.
-    from lwbench.datasets import KittiDataset
+    from lwbench.loaders import KittiDataset
 
     for i in (0, 1):
         ds[i]

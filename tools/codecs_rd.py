@@ -17,7 +17,7 @@ import numpy as np
 from lwbench_plugins.rangeimage.beams import fit_beam_table, read_beam_table, unproject_refined
 
 from lwbench import SensorModel, get_sensor
-from lwbench.datasets import KittiDataset
+from lwbench.loaders import KittiDataset
 
 
 def cases(real: Path) -> list[tuple[str, dict, str, str | None]]:

@@ -15,7 +15,7 @@ import pytest
 from lwbench_metrics import GeometryMetric, RangeMetric, SizeMetric
 
 from lwbench import CodecKind, Evaluation
-from lwbench.datasets import KittiDataset
+from lwbench.loaders import KittiDataset
 from lwbench.registry import get_registry
 from lwbench.run import DatasetSpec, Runner, RunPlan, expand_codec_configs
 from lwbench.store import ResultStore

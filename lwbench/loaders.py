@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from lwbench import Frame, Param
 from lwbench.dataset import Dataset
 from lwbench.derive import Derivation, derive_sensor, sensor_mismatch
 from lwbench.errors import DataWarning, ParameterError
@@ -50,7 +51,6 @@ from lwbench.io import (
     scan_suffix,
 )
 from lwbench.sensor import SENSOR_PRESETS, SensorModel, get_sensor
-from lwbench.types import Frame, Param
 
 __all__ = ["KittiDataset", "PointFileDataset", "SensorChoice", "pick_scans", "KITTI_LAYOUTS"]
 

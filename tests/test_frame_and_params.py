@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from lwbench import Frame, InvalidFrameError, Param, ParameterError, get_sensor
-from lwbench.types import resolve_params
+from lwbench.params import resolve_params
 
 
 @pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
