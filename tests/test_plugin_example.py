@@ -48,3 +48,14 @@ def test_example_plugin_runs_and_lands_on_the_leaderboard(installed, tmp_path, k
     assert half["failures"] == 0
     assert 1.9 < half["ratio"] < 2.0  # 6 bytes per point instead of 12, plus the header
     assert half["chamfer"] < 0.01
+
+
+def test_the_example_plugins_own_tests_pass_with_lwbenchs_conformance_kit(installed):
+    """A third-party package runs lwbench.testing.check_codec in its own test suite."""
+    env = {**os.environ, "PYTHONPATH": str(installed)}
+    res = subprocess.run(
+        [sys.executable, "-m", "pytest", "-q", "-p", "no:dash", "-p", "no:cacheprovider", str(EXAMPLE / "tests")],
+        env=env, capture_output=True, text=True, cwd=EXAMPLE,
+    )
+    assert res.returncode == 0, res.stdout + res.stderr
+    assert " passed" in res.stdout
