@@ -159,3 +159,37 @@ def test_runtime_metric_reports_what_the_runner_measured(tiny_sensor):
     f = Frame(np.ones((3, 3), np.float32), tiny_sensor)
     m = RuntimeMetric().compute(_ev(f, f.points, timings={"encode_ms": 5.0, "decode_ms": 2.0}, peak_mb=3.5))
     assert m == {"encode_ms": 5.0, "decode_ms": 2.0, "select_ms": None, "peak_mb": 3.5}
+
+
+def _two_returns_per_window(sensor, seed=0):
+    """A scan where every direction window holds two returns at very different ranges -- what
+    real scans have at depth edges and at short range (laser origins off the axis)."""
+    base = room_scan(sensor, seed=seed, noise=0.0)
+    r = np.linalg.norm(base.points, axis=1, keepdims=True)
+    rng = np.random.default_rng(seed)
+    # A second return 0.1 spacing away in azimuth and 2-8 m further out.
+    step = sensor.azimuth_step_rad * 0.1
+    c, s = math.cos(step), math.sin(step)
+    turned = base.points.astype(np.float64) @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]).T
+    far = turned / r * (r + rng.uniform(2, 8, r.shape))
+    pts = np.concatenate([base.points, far]).astype(np.float32)
+    return Frame(pts, sensor)
+
+
+def test_a_faithful_codec_is_not_charged_for_returns_that_share_a_window():
+    frame = _two_returns_per_window(get_sensor("vlp16"))
+    # 0.2 mm of noise: well inside every window (at 1.2 m, half a 0.1-degree step is 1 mm).
+    q = frame.points + np.random.default_rng(1).normal(0, 0.0002, frame.points.shape).astype(np.float32)
+    m = RangeMetric().compute(_ev(frame, q))
+    assert m["coverage"] == 1.0 and m["range_rmsd"] < 0.001  # the noise, not the 2-8 m between returns
+
+
+def test_one_decoded_return_where_the_scan_had_two_covers_one():
+    frame = _two_returns_per_window(get_sensor("vlp16"))
+    near_only = frame.points[: len(frame) // 2]
+    m = RangeMetric().compute(_ev(frame, near_only))
+    assert m["coverage"] == pytest.approx(0.5) and m["range_rmsd"] == 0.0
+    # Every selection codec too keeps its points' own ranges, whatever shares a window.
+    for cls in [c for c in get_registry().codecs.values() if c.kind.value == "selection"]:
+        kept = cls().decode(cls().encode(frame))
+        assert RangeMetric().compute(_ev(frame, kept))["range_rmsd"] == 0.0, cls.name
