@@ -1,0 +1,197 @@
+"""Rate-distortion: curves from a sweep, the Pareto front, values at equal rate or distortion,
+and the Bjøntegaard deltas (BD-rate, BD-distortion) between two codecs.
+
+A *curve* is one codec's (rate, distortion) points on one dataset -- one point per stored
+configuration (a sweep of its parameters) -- reduced to its efficient part: the points no other
+point of the same codec beats on both axes, in increasing rate. Rates are bytes per frame (or
+bits per point); a distortion is any metric id with a declared direction (``range_rmsd``,
+``chamfer``, ``d1_psnr``, ``ate_rmse``, ``occ_iou``, ...).
+
+Interpolation is piecewise linear in log(rate) *within* a curve and never extrapolates: asking
+a curve for a value outside the range it covers returns ``None``, which reports say as "does
+not reach".
+
+**Bjøntegaard deltas** (VCEG-M33, with the piecewise cubic Hermite interpolation (PCHIP) that
+replaced the original cubic polynomial fit in the JCT-VC common test conditions, because the
+polynomial overshoots on real curves):
+
+- the quality axis is the distortion in dB: metrics in dB as they are (``d1_psnr``),
+  lower-is-better distances as ``-20 log10(d)`` (what PSNR does to an RMSE), higher-is-better
+  shares (IoU, coverage) as they are;
+- BD-rate: the mean over the overlapping quality range of ``log10(rate_test) - log10(rate_ref)``
+  at equal quality (each curve's log-rate interpolated as a PCHIP function of quality), reported
+  as ``(10**mean - 1) * 100`` percent: negative = the test codec needs fewer bytes for the
+  same quality. A curve against itself is 0 %; the same curve at half the bytes is -50 %.
+- BD-distortion: the mean quality difference at equal log-rate over the overlapping rate range.
+
+Both need at least 4 points on each curve (the method's requirement) and an overlapping range;
+otherwise :class:`RDError` says which is missing.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from lwbench.errors import LwbenchError
+from lwbench.metric import HIGHER, LOWER, MetricId
+
+__all__ = [
+    "Curve",
+    "RDError",
+    "bd_distortion",
+    "bd_rate",
+    "curves_from_entries",
+    "pareto_front",
+    "quality",
+]
+
+MIN_BD_POINTS = 4
+
+
+class RDError(LwbenchError):
+    """A rate-distortion computation that the data cannot support (too few points, no overlap)."""
+
+
+@dataclass(frozen=True)
+class Point:
+    rate: float
+    distortion: float
+    label: str
+
+
+@dataclass(frozen=True)
+class Curve:
+    """One codec's efficient points, increasing in rate."""
+
+    codec: str
+    dataset: str
+    points: tuple[Point, ...]
+    better: str  # the distortion's direction: "lower" or "higher"
+
+    @property
+    def rates(self) -> np.ndarray:
+        return np.array([p.rate for p in self.points])
+
+    @property
+    def distortions(self) -> np.ndarray:
+        return np.array([p.distortion for p in self.points])
+
+    def distortion_at(self, rate: float) -> float | None:
+        """Distortion at ``rate`` by linear interpolation in log(rate); ``None`` outside the curve."""
+        r, d = self.rates, self.distortions
+        if not len(r) or rate < r[0] or rate > r[-1]:
+            return None
+        if len(r) == 1:
+            return float(d[0])
+        return float(np.interp(math.log(rate), np.log(r), d))
+
+    def rate_at(self, distortion: float) -> float | None:
+        """Rate needed for ``distortion`` (log-rate interpolated); ``None`` if never reached."""
+        r, d = self.rates, self.distortions
+        if not len(r):
+            return None
+        # Efficient points improve with rate: monotone in distortion, so invert piecewise.
+        order = np.argsort(d)
+        ds, lr = d[order], np.log(r[order])
+        if distortion < ds[0] or distortion > ds[-1]:
+            return None
+        if len(r) == 1:
+            return float(r[0])
+        return float(math.exp(np.interp(distortion, ds, lr)))
+
+
+def _dominates(a: Point, b: Point, better: str) -> bool:
+    """``a`` is at least as good as ``b`` on both axes and better on one."""
+    d_ok = a.distortion <= b.distortion if better == LOWER else a.distortion >= b.distortion
+    d_strict = a.distortion < b.distortion if better == LOWER else a.distortion > b.distortion
+    return a.rate <= b.rate and d_ok and (a.rate < b.rate or d_strict)
+
+
+def pareto_front(points: list[Point], better: str) -> list[Point]:
+    """The points no other point beats on both rate and distortion, in increasing rate."""
+    front = [p for p in points if not any(_dominates(q, p, better) for q in points if q is not p)]
+    return sorted(front, key=lambda p: (p.rate, p.distortion))
+
+
+def curves_from_entries(
+    entries: list,
+    distortion: str,
+    *,
+    rate: str = "bytes",
+    info: Mapping[str, MetricId] | None = None,
+) -> dict[tuple[str, str], Curve]:
+    """One :class:`Curve` per (dataset, codec) from leaderboard entries (their mean values).
+    Entries that are flagged (low coverage, failed rows) or lack either value are left out."""
+    better = getattr((info or {}).get(distortion), "better", "") or LOWER
+    if better not in (LOWER, HIGHER):
+        raise RDError(f"{distortion} has no better direction, so it is not a distortion")
+    grouped: dict[tuple[str, str], list[Point]] = defaultdict(list)
+    for e in entries:
+        r, d = e.shown(rate), e.shown(distortion)
+        if r is None or d is None or not math.isfinite(r) or not math.isfinite(d) or r <= 0 or e.flags:
+            continue
+        grouped[(e.dataset, e.codec)].append(Point(float(r), float(d), e.label))
+    return {
+        key: Curve(key[1], key[0], tuple(pareto_front(pts, better)), better)
+        for key, pts in sorted(grouped.items())
+    }
+
+
+def quality(distortion: np.ndarray, better: str, unit: str = "") -> np.ndarray:
+    """The quality axis of the Bjøntegaard deltas (see the module notes)."""
+    d = np.asarray(distortion, dtype=np.float64)
+    if unit == "dB" or better == HIGHER:
+        return d
+    if (d <= 0).any():
+        raise RDError("a lower-is-better distortion of 0 (lossless) has no dB value: leave that point out")
+    return -20.0 * np.log10(d)
+
+
+def _pchip(x: np.ndarray, y: np.ndarray):
+    from scipy.interpolate import PchipInterpolator
+
+    order = np.argsort(x)
+    x, y = x[order], y[order]
+    if len(np.unique(x)) != len(x):
+        raise RDError("two points of a curve share one value on the interpolation axis")
+    return PchipInterpolator(x, y)
+
+
+def _check(ref: Curve, test: Curve) -> None:
+    for c in (ref, test):
+        if len(c.points) < MIN_BD_POINTS:
+            raise RDError(
+                f"{c.codec} on {c.dataset}: {len(c.points)} efficient point(s); the Bjøntegaard delta needs "
+                f"at least {MIN_BD_POINTS} per curve (sweep more settings)"
+            )
+
+
+def _mean_gap(xa: np.ndarray, ya: np.ndarray, xb: np.ndarray, yb: np.ndarray, what: str) -> float:
+    """Mean of ``f_b(x) - f_a(x)`` over the overlap of the two x ranges (PCHIP, exact integral)."""
+    lo, hi = max(xa.min(), xb.min()), min(xa.max(), xb.max())
+    if not hi > lo:
+        raise RDError(f"the two curves do not overlap in {what} ({xa.min():.4g}..{xa.max():.4g} vs "
+                      f"{xb.min():.4g}..{xb.max():.4g})")
+    fa, fb = _pchip(xa, ya), _pchip(xb, yb)
+    return float((fb.integrate(lo, hi) - fa.integrate(lo, hi)) / (hi - lo))
+
+
+def bd_rate(ref: Curve, test: Curve, unit: str = "") -> float:
+    """BD-rate of ``test`` against ``ref`` in percent (negative: ``test`` needs fewer bytes)."""
+    _check(ref, test)
+    qa, qb = quality(ref.distortions, ref.better, unit), quality(test.distortions, test.better, unit)
+    gap = _mean_gap(qa, np.log10(ref.rates), qb, np.log10(test.rates), "quality")
+    return (10.0**gap - 1.0) * 100.0
+
+
+def bd_distortion(ref: Curve, test: Curve, unit: str = "") -> float:
+    """BD-distortion: mean quality difference (dB, or the metric's unit) of ``test`` over ``ref``
+    at equal rate (positive: ``test`` is better)."""
+    _check(ref, test)
+    qa, qb = quality(ref.distortions, ref.better, unit), quality(test.distortions, test.better, unit)
+    return _mean_gap(np.log10(ref.rates), qa, np.log10(test.rates), qb, "rate")
