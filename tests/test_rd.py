@@ -12,7 +12,8 @@ from lwbench.rd import Curve, Point, RDError, bd_distortion, bd_rate, pareto_fro
 
 
 def _curve(rates, dists, better=LOWER, codec="c") -> Curve:
-    return Curve(codec, "d", tuple(Point(r, d, f"{codec}{i}") for i, (r, d) in enumerate(zip(rates, dists))), better)
+    points = (Point(r, d, f"{codec}{i}") for i, (r, d) in enumerate(zip(rates, dists, strict=True)))
+    return Curve(codec, "d", tuple(points), better)
 
 
 RATES = [1000.0, 2000.0, 4000.0, 8000.0, 16000.0]
@@ -54,7 +55,8 @@ def test_too_few_points_or_no_overlap_is_a_clear_error():
 
 
 def test_the_pareto_front_drops_beaten_points_and_interpolation_never_extrapolates():
-    pts = [Point(r, d, str(i)) for i, (r, d) in enumerate(zip(RATES, RMSD))] + [Point(3000.0, 0.3, "beaten")]
+    pts = [Point(r, d, str(i)) for i, (r, d) in enumerate(zip(RATES, RMSD, strict=True))]
+    pts.append(Point(3000.0, 0.3, "beaten"))
     front = pareto_front(pts, LOWER)
     assert [p.label for p in front] == ["0", "1", "2", "3", "4"]
     c = Curve("c", "d", tuple(front), LOWER)
