@@ -169,50 +169,67 @@ def run(
     min_coverage: Annotated[
         float, typer.Option(help="Flag configurations whose coverage is below this.", min=0, max=1)
     ] = DEFAULT_MIN_COVERAGE,
+    config: Annotated[
+        Path | None, typer.Option(help="A TOML run file: datasets x codecs x grids x seeds (see docs).")
+    ] = None,
 ) -> None:
     """Evaluate codecs on a dataset; every result lands in the store; print the leaderboard."""
     from lwbench.leaderboard import build_leaderboard
     from lwbench.run import Runner, parse_assignments, parse_sweeps, plan_run
+    from lwbench.run.config import load_run_file
     from lwbench.store import ResultStore
 
     reg = _registry()
     try:
-        codecs = list(dict.fromkeys(codec))
-        owners = codecs or sorted(n for n, c in reg.codecs.items() if c.in_default_run)
-        plan = plan_run(
-            reg,
-            dataset=dataset,
-            dataset_params=parse_assignments(dataset_param, "--dataset-param"),
-            codecs=codecs,
-            sweeps=parse_sweeps(param, owners, "--param"),
-            frames=frames,
-            seed=seed,
-            metric_params=parse_sweeps_single(metric_param, reg),
-            sequence_metrics=sequence_metrics,
-        )
+        if config is not None:
+            if dataset or dataset_param or codec or param:
+                _fail("--config describes the datasets and codecs: leave out --dataset, --codec and --param")
+            run_file = load_run_file(config, reg)
+            plans = list(run_file.plans)
+            if run_file.store is not None and store == DEFAULT_STORE:
+                store = run_file.store
+            workers = max(workers, run_file.workers)
+        else:
+            codecs = list(dict.fromkeys(codec))
+            owners = codecs or sorted(n for n, c in reg.codecs.items() if c.in_default_run)
+            plans = [plan_run(
+                reg,
+                dataset=dataset,
+                dataset_params=parse_assignments(dataset_param, "--dataset-param"),
+                codecs=codecs,
+                sweeps=parse_sweeps(param, owners, "--param"),
+                frames=frames,
+                seed=seed,
+                metric_params=parse_sweeps_single(metric_param, reg),
+                sequence_metrics=sequence_metrics,
+            )]
         info = reg.metric_info()
         wanted = _columns(columns, info, reg)
+        keys: set[str] = set()
         with ResultStore(store) as results:
-            runner = Runner(results, plan, registry=reg, workers=workers, retry_failed=retry_failed, force=force)
-            n_total = len(runner.frame_indices) * len(runner.configs)
-            console.print(
-                f"[bold]lwbench run[/]: {plan.dataset.label} · {len(runner.frame_indices)} frame(s) · "
-                f"{len(runner.configs)} codec configuration(s) · store {store}"
-            )
-            summary = _run_with_progress(runner)
-            console.print(
-                f"evaluated {summary.evaluated}, cached {summary.skipped} of {n_total}; "
-                f"{summary.failed} failure(s); {summary.sequence_rows} sequence row(s)"
-            )
-            for f in summary.failures[:10]:
-                err_console.print(f"[red]failed:[/] {f}", highlight=False)
-            if summary.interrupted:
-                err_console.print(
-                    "[yellow]interrupted:[/] finished rows are stored; run the same command again to resume"
+            for plan in plans:
+                runner = Runner(results, plan, registry=reg, workers=workers, retry_failed=retry_failed, force=force)
+                n_total = len(runner.frame_indices) * len(runner.configs)
+                console.print(
+                    f"[bold]lwbench run[/]: {escape(plan.dataset.label)} · {len(runner.frame_indices)} frame(s) · "
+                    f"{len(runner.configs)} codec configuration(s) · store {escape(str(store))}"
                 )
-                raise typer.Exit(130)
-            entries = build_leaderboard(results, sort=sort, info=info, keys=runner.keys(), min_coverage=min_coverage)
-            console.print(f"dataset: {plan.dataset.label}")
+                summary = _run_with_progress(runner)
+                console.print(
+                    f"evaluated {summary.evaluated}, cached {summary.skipped} of {n_total}; "
+                    f"{summary.failed} failure(s); {summary.sequence_rows} sequence row(s)"
+                )
+                for f in summary.failures[:10]:
+                    err_console.print(f"[red]failed:[/] {escape(f)}", highlight=False)
+                if summary.interrupted:
+                    err_console.print(
+                        "[yellow]interrupted:[/] finished rows are stored; run the same command again to resume"
+                    )
+                    raise typer.Exit(130)
+                keys |= runner.keys()
+            entries = build_leaderboard(results, sort=sort, info=info, keys=keys, min_coverage=min_coverage)
+            if len(plans) == 1:
+                console.print(f"dataset: {escape(plans[0].dataset.label)}")
             _print_table(entries, sort, wanted, info)
     except LwbenchError as exc:
         _fail(str(exc))
@@ -348,6 +365,72 @@ def leaderboard(
         print(to_markdown(entries, cols, info), end="")
     else:
         _print_table(entries, sort, wanted, info)
+
+
+# -------------------------------------------------------------------------------------- rd
+@app.command()
+def rd(
+    distortion: Annotated[str, typer.Option(help="Distortion metric id (range_rmsd, chamfer, d1_psnr, ate_rmse, ...).")]
+    = "range_rmsd",
+    rate: Annotated[str, typer.Option(help="Rate metric id: bytes (per frame) or bits_per_point.")] = "bytes",
+    store: Annotated[Path, typer.Option(help="SQLite results store.")] = DEFAULT_STORE,
+    dataset: Annotated[str | None, typer.Option(help="Only this dataset (name, label or id).")] = None,
+    reference: Annotated[str | None, typer.Option(help="Codec the BD-rate / BD-distortion are measured against.")]
+    = None,
+    at_rate: Annotated[float | None, typer.Option(help="Report each curve's distortion at this rate.")] = None,
+    at_distortion: Annotated[float | None, typer.Option(help="Report each curve's rate at this distortion.")] = None,
+    format: Annotated[str, typer.Option("--format", help="table | json")] = "table",
+) -> None:
+    """Rate-distortion from the sweep points in the store: each codec's curve, the Pareto front,
+    values at equal rate / distortion (interpolated, never extrapolated) and BD-rate."""
+    from lwbench.leaderboard import build_leaderboard, check_metric_ids
+    from lwbench.rd import curves_from_entries, summarise
+    from lwbench.store import ResultStore
+
+    if format not in ("table", "json"):
+        _fail(f"--format must be table or json, got {format!r}")
+    reg = _registry()
+    info = reg.metric_info()
+    try:
+        check_metric_ids([distortion, rate], info, "lwbench rd")
+        with ResultStore(store, readonly=True) as results:
+            entries = build_leaderboard(results, dataset=dataset, info=info)
+        left_out: list = []
+        curves = curves_from_entries(entries, distortion, rate=rate, info=info, left_out=left_out)
+        unit = info[distortion].unit
+        summary = summarise(curves, unit=unit, at_rate=at_rate, at_distortion=at_distortion, reference=reference)
+    except LwbenchError as exc:
+        _fail(str(exc))
+    if not summary:
+        _fail(f"no unflagged configuration in {store} has both {rate} and {distortion}")
+    skipped = [{"dataset": e.dataset, "label": e.label, "reason": why} for e, why in left_out]
+    if format == "json":
+        print(json.dumps({"rate": rate, "distortion": distortion, "datasets": summary, "left_out": skipped}, indent=2))
+        return
+    d_unit, r_unit = info[distortion].unit, info[rate].unit
+    for ds, s in summary.items():
+        table = Table(title=f"{ds}: {distortion} [{d_unit}] against {rate} [{r_unit}]", title_justify="left")
+        for col in ("codec", "points (label: rate -> distortion)", "on the front"):
+            table.add_column(col)
+        on_front = {(f["codec"], f["label"]) for f in s["front"]}
+        for codec, pts in s["curves"].items():
+            text = "; ".join(f"{p['label']}: {p['rate']:,.0f} -> {p['distortion']:.4g}" for p in pts)
+            n = sum((codec, p["label"]) in on_front for p in pts)
+            table.add_row(escape(codec), escape(text), f"{n} of {len(pts)}")
+        console.print(table)
+        for what, key, fmt in (("at_rate", at_rate, "{:.4g}"), ("at_distortion", at_distortion, "{:,.0f}")):
+            if key is None:
+                continue
+            vals = ", ".join(f"{c} {fmt.format(v) if v is not None else 'does not reach'}" for c, v in s[what].items())
+            console.print(f"{'distortion at' if what == 'at_rate' else 'rate at'} {key:g}: {escape(vals)}")
+        for codec, bd in s["bd"].items():
+            if "error" in bd:
+                console.print(f"BD vs {reference}: {escape(codec)}: {escape(bd['error'])}")
+            else:
+                console.print(f"BD vs {reference}: {escape(codec)}: BD-rate {bd['bd_rate_pct']:+.1f} %, "
+                              f"BD-distortion {bd['bd_distortion']:+.3g} dB")
+    if skipped:
+        console.print("left out: " + escape("; ".join(f"{s['label']} ({s['reason']})" for s in skipped)))
 
 
 # ---------------------------------------------------------------------------------- inspect

@@ -46,8 +46,11 @@ __all__ = [
     "bd_distortion",
     "bd_rate",
     "curves_from_entries",
+    "front_across",
+    "left_out_flags",
     "pareto_front",
     "quality",
+    "summarise",
 ]
 
 MIN_BD_POINTS = 4
@@ -118,22 +121,37 @@ def pareto_front(points: list[Point], better: str) -> list[Point]:
     return sorted(front, key=lambda p: (p.rate, p.distortion))
 
 
+def left_out_flags(distortion: str) -> set[str]:
+    """Flags that keep a configuration off the curves of ``distortion``: failed rows always; low
+    coverage for the range RMSD, which is measured over the paired returns only (a codec that
+    pairs 40 % of the scan has an RMSD over that 40 %)."""
+    return {"failed_rows", "localization_not_meaningful"} | ({"low_coverage"} if distortion == "range_rmsd" else set())
+
+
 def curves_from_entries(
     entries: list,
     distortion: str,
     *,
     rate: str = "bytes",
     info: Mapping[str, MetricId] | None = None,
+    left_out: list | None = None,
 ) -> dict[tuple[str, str], Curve]:
     """One :class:`Curve` per (dataset, codec) from leaderboard entries (their mean values).
-    Entries that are flagged (low coverage, failed rows) or lack either value are left out."""
+    Entries flagged as :func:`left_out_flags` says, or lacking either value, are left out (and
+    appended to ``left_out`` as ``(entry, reason)``)."""
     better = getattr((info or {}).get(distortion), "better", "") or LOWER
     if better not in (LOWER, HIGHER):
         raise RDError(f"{distortion} has no better direction, so it is not a distortion")
+    skip = left_out_flags(distortion)
     grouped: dict[tuple[str, str], list[Point]] = defaultdict(list)
     for e in entries:
         r, d = e.shown(rate), e.shown(distortion)
-        if r is None or d is None or not math.isfinite(r) or not math.isfinite(d) or r <= 0 or e.flags:
+        reason = next((f for f in e.flags if f in skip), None)
+        if reason is None and (r is None or d is None or not math.isfinite(r) or not math.isfinite(d) or r <= 0):
+            reason = f"no finite {rate} / {distortion}"
+        if reason is not None:
+            if left_out is not None:
+                left_out.append((e, reason))
             continue
         grouped[(e.dataset, e.codec)].append(Point(float(r), float(d), e.label))
     return {
@@ -195,3 +213,55 @@ def bd_distortion(ref: Curve, test: Curve, unit: str = "") -> float:
     _check(ref, test)
     qa, qb = quality(ref.distortions, ref.better, unit), quality(test.distortions, test.better, unit)
     return _mean_gap(np.log10(ref.rates), qa, np.log10(test.rates), qb, "rate")
+
+
+def front_across(curves: Mapping[tuple[str, str], Curve], dataset: str) -> list[tuple[str, Point]]:
+    """The Pareto front over every codec's points on ``dataset``: (codec, point), by rate."""
+    pts = [(c.codec, p) for (ds, _), c in curves.items() if ds == dataset for p in c.points]
+    if not pts:
+        return []
+    better = next(c.better for (ds, _), c in curves.items() if ds == dataset)
+    front = pareto_front([p for _, p in pts], better)
+    owner = {id(p): codec for codec, p in pts}
+    return [(owner[id(p)], p) for p in front]
+
+
+def summarise(
+    curves: Mapping[tuple[str, str], Curve],
+    *,
+    unit: str = "",
+    at_rate: float | None = None,
+    at_distortion: float | None = None,
+    reference: str | None = None,
+) -> dict[str, dict]:
+    """Per dataset: each codec's curve, the front across codecs, values at an equal rate or
+    distortion (``None`` = the curve does not reach it) and, with a ``reference`` codec, every
+    other codec's BD-rate / BD-distortion against it (or the reason it cannot be computed)."""
+    out: dict[str, dict] = {}
+    for (dataset, codec), curve in curves.items():
+        ds = out.setdefault(dataset, {"curves": {}, "front": [], "at_rate": {}, "at_distortion": {}, "bd": {}})
+        ds["curves"][codec] = [{"label": p.label, "rate": p.rate, "distortion": p.distortion} for p in curve.points]
+        if at_rate is not None:
+            ds["at_rate"][codec] = curve.distortion_at(at_rate)
+        if at_distortion is not None:
+            ds["at_distortion"][codec] = curve.rate_at(at_distortion)
+    for dataset, ds in out.items():
+        ds["front"] = [{"codec": c, "label": p.label, "rate": p.rate, "distortion": p.distortion}
+                       for c, p in front_across(curves, dataset)]
+        if reference is None:
+            continue
+        ref = curves.get((dataset, reference))
+        for (d2, codec), curve in curves.items():
+            if d2 != dataset or codec == reference:
+                continue
+            if ref is None:
+                ds["bd"][codec] = {"error": f"no curve for the reference {reference!r} on this dataset"}
+                continue
+            try:
+                ds["bd"][codec] = {
+                    "bd_rate_pct": bd_rate(ref, curve, unit),
+                    "bd_distortion": bd_distortion(ref, curve, unit),
+                }
+            except RDError as exc:
+                ds["bd"][codec] = {"error": str(exc)}
+    return out
