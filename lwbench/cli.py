@@ -433,6 +433,39 @@ def rd(
         console.print("left out: " + escape("; ".join(f"{s['label']} ({s['reason']})" for s in skipped)))
 
 
+# ---------------------------------------------------------------------------------- report
+@app.command()
+def report(
+    out: Annotated[Path, typer.Option(help="Folder for index.html and the plots (PNG + SVG).")] = Path(
+        "lwbench-report"
+    ),
+    store: Annotated[Path, typer.Option(help="SQLite results store.")] = DEFAULT_STORE,
+    dataset: Annotated[str | None, typer.Option(help="Only this dataset (name, label or id).")] = None,
+    config: Annotated[
+        Path | None, typer.Option(help="Run this TOML study first (cached rows are reused), then report it.")
+    ] = None,
+) -> None:
+    """Write a self-contained HTML report: sortable leaderboard, RD curves, runtime, a gallery."""
+    from lwbench.report import write_report
+
+    if config is not None:
+        from lwbench.run.config import load_run_file
+
+        run_file = load_run_file(config, _registry())
+        if run_file.store is not None and store == DEFAULT_STORE:
+            store = run_file.store
+        run(config=config, store=store, dataset=None, dataset_param=[], codec=[], param=[], frames=None,
+            workers=run_file.workers, seed=0, sequence_metrics=True, retry_failed=False, force=False,
+            metric_param=[], sort="ratio", columns=None, min_coverage=DEFAULT_MIN_COVERAGE)
+    if not store.exists():
+        _fail(f"no results store at {store} (run `lwbench run` first)")
+    try:
+        page = write_report(store, out, _registry(), dataset=dataset)
+    except LwbenchError as exc:
+        _fail(str(exc))
+    console.print(f"wrote {page} (open it in a browser; plots as PNG and SVG beside it)")
+
+
 # ---------------------------------------------------------------------------------- inspect
 @app.command()
 def inspect(file: Annotated[Path, typer.Argument(help="A payload, scan file, dataset folder or store.")]) -> None:

@@ -80,6 +80,7 @@ class LeaderboardEntry:
     stale: int = 0
     frame_set: tuple[int, ...] = ()
     swept: tuple[str, ...] = ()  # parameters that take several values among this codec's entries
+    evaluations: dict[int, str] = field(default_factory=dict, repr=False)  # frame -> evaluation key
 
     @property
     def full_label(self) -> str:
@@ -238,6 +239,7 @@ def build_leaderboard(
         for r in rows:
             if r.kind == "frame":
                 frames.append(r.frame)
+                entry.evaluations[r.frame] = r.evaluation
             if r.status != "ok":
                 entry.failures += 1
                 if r.error and len(entry.errors) < 3:

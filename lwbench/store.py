@@ -322,6 +322,13 @@ class ResultStore:
             )
             self.conn.executemany("INSERT OR REPLACE INTO artifacts VALUES (?, ?, ?)", blobs)
 
+    def put_artifact(self, key: str, name: str, array: np.ndarray) -> None:
+        """Store an array that belongs to no single row (e.g. an original scan a report shows)."""
+        if self.readonly:
+            raise StoreError(f"{self.path} was opened read-only")
+        with self.conn:
+            self.conn.execute("INSERT OR REPLACE INTO artifacts VALUES (?, ?, ?)", (key, name, _pack_array(array)))
+
     def artifact(self, evaluation: str, name: str) -> np.ndarray | None:
         """An array stored with an evaluation (``None`` if it was not kept)."""
         if not self._has_artifacts:

@@ -22,9 +22,15 @@ from lwbench.store import ResultRow, ResultStore, environment_versions, machine_
 from .evaluate import FrameResult
 from .plan import CodecConfig
 
-__all__ = ["Provenance", "RowFactory", "DECODED"]
+__all__ = ["Provenance", "RowFactory", "DECODED", "ORIGINAL", "original_key", "record_original"]
 
 DECODED = "decoded"  # artifact name of a decoded cloud
+ORIGINAL = "points"  # artifact name of an original scan (under original_key)
+
+
+def original_key(dataset_id: str, frame: int) -> str:
+    """Where the original scan of a frame is kept when a report will show it."""
+    return f"original:{dataset_id}:{frame}"
 
 
 @dataclass(frozen=True)
@@ -117,3 +123,10 @@ def record_frame(store: ResultStore, rows: RowFactory, result: FrameResult) -> R
     artifacts = {DECODED: result.decoded} if result.decoded is not None and result.status == "ok" else None
     store.put(row, artifacts)
     return row
+
+
+def record_original(store: ResultStore, dataset_id: str, frame: int, points) -> None:
+    """Keep an original scan beside the decoded clouds of its frame (what a gallery compares)."""
+    key = original_key(dataset_id, frame)
+    if store.artifact(key, ORIGINAL) is None:
+        store.put_artifact(key, ORIGINAL, points)

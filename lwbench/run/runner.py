@@ -18,7 +18,7 @@ from lwbench.store import ResultRow, ResultStore
 from .evaluate import Evaluator
 from .execute import FrameTask, LocalExecutor, Worker
 from .plan import CodecConfig, RunPlan
-from .record import Provenance, RowFactory, record_frame
+from .record import Provenance, RowFactory, record_frame, record_original
 from .sequence import SequenceStage
 
 __all__ = ["Progress", "RunSummary", "Runner"]
@@ -120,6 +120,10 @@ class Runner:
                 on_progress(Progress(phase, done, n, row))
 
         try:
+            if tasks and self.frame_indices:
+                # The first frame's original is kept beside its decoded clouds (a report's gallery).
+                first = self.frame_indices[0]
+                record_original(self.store, self.dataset_id, first, self.dataset[first].points)
             for results in executor.map(tasks):
                 for result in results:
                     row = record_frame(self.store, self.rows, result)

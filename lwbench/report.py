@@ -1,0 +1,294 @@
+"""``lwbench report``: one self-contained HTML page (no network needed) of what a store holds.
+
+- the leaderboard as a sortable table (click a header), with the quality flags;
+- rate-distortion curves, one plot per distortion (range RMSD, Chamfer, D1 PSNR, ATE, occupancy
+  IoU, whichever the store has), each codec's efficient points joined;
+- runtime bars (encode / decode / select, mean with the std over frames as error bars);
+- a gallery: per codec, one decoded frame beside the original -- a top-down view and a range
+  image, coloured by range -- so a person sees what a codec loses.
+
+Every plot is also written as PNG and SVG beside the page, for papers. Images are embedded
+(base64 PNG, inline SVG) and the page's script is inline: it opens from a file, offline.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import json
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from lwbench.leaderboard import FLAG_TEXT, LeaderboardEntry, build_leaderboard, header_name
+from lwbench.metric import MetricId
+from lwbench.rd import curves_from_entries
+from lwbench.registry import Registry
+from lwbench.run.record import DECODED, ORIGINAL, original_key
+from lwbench.store import ResultStore
+
+__all__ = ["write_report", "DISTORTIONS"]
+
+DISTORTIONS = ("range_rmsd", "chamfer", "d1_psnr", "ate_rmse", "occ_iou")
+TABLE_COLUMNS = ("bytes", "ratio", "bits_per_point", "range_rmsd", "coverage", "false_returns", "chamfer",
+                 "d1_psnr", "encode_ms", "decode_ms", "select_ms", "ate_rmse", "occ_iou")
+_RUNTIME = ("encode_ms", "decode_ms", "select_ms")
+
+
+@dataclass
+class Figure:
+    name: str
+    title: str
+    svg: str  # inline markup
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    plt.rcParams.update({"svg.hashsalt": "lwbench", "figure.dpi": 100, "font.size": 9})
+    return plt
+
+
+def _save(fig, out: Path, name: str) -> str:
+    """Write ``name.png`` and ``name.svg``; return the SVG markup (deterministic ids)."""
+    fig.savefig(out / f"{name}.png", bbox_inches="tight", dpi=150)
+    buf = io.StringIO()
+    fig.savefig(buf, format="svg", bbox_inches="tight", metadata={"Date": None})
+    svg = buf.getvalue()
+    (out / f"{name}.svg").write_text(svg)
+    return svg[svg.index("<svg"):]
+
+
+def rd_figures(entries: list[LeaderboardEntry], info: Mapping[str, MetricId], out: Path) -> list[Figure]:
+    plt = _plt()
+    figures = []
+    for distortion in DISTORTIONS:
+        if distortion not in info:
+            continue
+        curves = curves_from_entries(entries, distortion, info=info)
+        curves = {k: c for k, c in curves.items() if c.points}
+        if not curves:
+            continue
+        datasets = sorted({ds for ds, _ in curves})
+        for ds in datasets:
+            fig, ax = plt.subplots(figsize=(6.0, 4.0))
+            for (d, codec), c in sorted(curves.items()):
+                if d != ds:
+                    continue
+                ax.plot(c.rates, c.distortions, marker="o", ms=4, lw=1.4, label=codec)
+            ax.set_xscale("log")
+            if info[distortion].better == "lower" and all(v > 0 for c in curves.values() for v in c.distortions):
+                ax.set_yscale("log")
+            ax.set_xlabel("bytes per frame")
+            ax.set_ylabel(header_name(distortion, info))
+            ax.grid(True, which="both", alpha=0.3)
+            ax.legend(fontsize=8, ncol=2)
+            ax.set_title(f"{distortion} on {ds}", fontsize=9)
+            name = f"rd_{distortion}" + ("" if len(datasets) == 1 else f"_{datasets.index(ds)}")
+            figures.append(Figure(name, f"{distortion} against bytes ({ds})", _save(fig, out, name)))
+            plt.close(fig)
+    return figures
+
+
+def runtime_figure(entries: list[LeaderboardEntry], out: Path) -> Figure | None:
+    rows = [e for e in entries if any(e.value(k) is not None for k in _RUNTIME)]
+    if not rows:
+        return None
+    plt = _plt()
+    labels = [e.label if len({x.dataset for x in rows}) == 1 else f"{e.label} · {e.dataset}" for e in rows]
+    fig, ax = plt.subplots(figsize=(7.0, 0.28 * len(rows) + 1.2))
+    y = np.arange(len(rows))
+    h = 0.27
+    for k, key in enumerate(_RUNTIME):
+        means = [e.value(key) or 0.0 for e in rows]
+        stds = [e.value(key, "std") or 0.0 for e in rows]
+        ax.barh(y + (k - 1) * h, means, h, xerr=stds, label=key.removesuffix("_ms"), capsize=2)
+    ax.set_yticks(y, labels, fontsize=7)
+    ax.invert_yaxis()
+    ax.set_xscale("log")
+    ax.set_xlabel("ms per frame (mean ± std over frames)")
+    ax.grid(True, axis="x", which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    svg = _save(fig, out, "runtime")
+    plt.close(fig)
+    return Figure("runtime", "Runtime per frame", svg)
+
+
+def _raster(values_xy: np.ndarray, values: np.ndarray, extent: tuple[float, float, float, float],
+            shape: tuple[int, int]) -> np.ndarray:
+    """Per-pixel minimum of ``values`` (NaN where empty): a fast picture of 10^5 points."""
+    x0, x1, y0, y1 = extent
+    h, w = shape
+    cx = ((values_xy[:, 0] - x0) / (x1 - x0) * w).astype(np.int64)
+    cy = ((values_xy[:, 1] - y0) / (y1 - y0) * h).astype(np.int64)
+    ok = (cx >= 0) & (cx < w) & (cy >= 0) & (cy < h)
+    img = np.full(h * w, np.inf)
+    np.minimum.at(img, cy[ok] * w + cx[ok], values[ok])
+    img[~np.isfinite(img)] = np.nan
+    return img.reshape(h, w)
+
+
+def _views(points: np.ndarray, half: float, el_span: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+    from lwbench.geometry import spherical
+
+    r, az, el = spherical(points)
+    top = _raster(points[:, :2], r, (-half, half, -half, half), (220, 220))
+    rimg = _raster(np.stack([az, el], axis=1), r, (-math.pi, math.pi, *el_span), (48, 720))
+    return top, rimg
+
+
+def gallery_image(original: np.ndarray, decoded: np.ndarray, title: str) -> str:
+    """A PNG (base64) of the original and decoded cloud: top-down and range image, by range."""
+    plt = _plt()
+    r = np.linalg.norm(original, axis=1)
+    half = float(np.percentile(np.abs(original[:, :2]), 98)) * 1.05 or 1.0
+    from lwbench.geometry import spherical
+
+    _, _, el = spherical(original)
+    el_span = (float(el.min()) - 1e-3, float(el.max()) + 1e-3)
+    vmax = float(np.percentile(r, 99)) or 1.0
+    fig, axes = plt.subplots(2, 2, figsize=(9.0, 4.6), gridspec_kw={"height_ratios": [3, 1]})
+    for col, (name, pts) in enumerate((("original", original), ("decoded", decoded))):
+        top, rimg = _views(np.asarray(pts, np.float64), half, el_span) if len(pts) else (
+            np.full((220, 220), np.nan), np.full((48, 720), np.nan))
+        axes[0, col].imshow(top, origin="lower", cmap="viridis", vmin=0, vmax=vmax, interpolation="nearest")
+        axes[0, col].set_title(f"{name}: {len(pts):,} points", fontsize=9)
+        axes[1, col].imshow(rimg, origin="lower", cmap="viridis", vmin=0, vmax=vmax, aspect="auto",
+                            interpolation="nearest")
+        axes[1, col].set_xlabel("range image (azimuth x elevation)", fontsize=8)
+        for ax in axes[:, col]:
+            ax.set_xticks([])
+            ax.set_yticks([])
+    fig.suptitle(title, fontsize=10)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", bbox_inches="tight", dpi=90)
+    plt.close(fig)
+    return base64.b64encode(buf.getvalue()).decode()
+
+
+def _gallery(store: ResultStore, entries: list[LeaderboardEntry]) -> list[tuple[str, str]]:
+    """One (title, png) per dataset and codec: the codec's most default configuration."""
+    chosen: dict[tuple[str, str], LeaderboardEntry] = {}
+    for e in entries:
+        key = (e.dataset_id, e.codec)
+        if e.evaluations and (key not in chosen or len(e.label) < len(chosen[key].label)):
+            chosen[key] = e
+    out = []
+    for (ds_id, _), e in sorted(chosen.items(), key=lambda kv: (kv[1].dataset, kv[1].codec)):
+        frame = min(e.evaluations)
+        original = store.artifact(original_key(ds_id, frame), ORIGINAL)
+        decoded = store.artifact(e.evaluations[frame], DECODED)
+        if original is None or decoded is None:
+            continue
+        title = f"{e.label} · {e.dataset} · frame {frame}"
+        out.append((title, gallery_image(original, decoded, title)))
+    return out
+
+
+def _table(entries: list[LeaderboardEntry], info: Mapping[str, MetricId]) -> str:
+    cols = [c for c in TABLE_COLUMNS if any(e.value(c) is not None for e in entries)]
+    many = len({e.dataset for e in entries}) > 1
+    columns = [("dataset", "text", "")] if many else []
+    columns += [("codec", "text", "configuration"), ("frames", "num", ""), ("fail", "num", "failed rows")]
+    columns += [(header_name(c, info), "num", f"{c}: {getattr(info.get(c), 'better', '')} is better") for c in cols]
+    columns.append(("flags", "text", "quality guard"))
+    head = "".join(f'<th data-type="{t}" title="{html.escape(d)}">{html.escape(n)}</th>' for n, t, d in columns)
+    rows = []
+    for e in entries:
+        cells = [*([html.escape(e.dataset)] if many else []), html.escape(e.label)]
+        tds = "".join(f"<td>{c}</td>" for c in cells)
+        tds += f'<td data-v="{e.frames}">{e.frames}</td><td data-v="{e.failures}">{e.failures}</td>'
+        for c in cols:
+            v = e.shown(c)
+            if v is None or not math.isfinite(v):
+                text = "n/m" if e.value(c) is not None else "–"
+                tds += f'<td data-v="">{text}</td>'
+            else:
+                std = e.value(c, "std")
+                tip = f' title="± {std:.4g}"' if std else ""
+                tds += f'<td data-v="{v!r}"{tip}>{v:.4g}</td>'
+        flags = ", ".join(FLAG_TEXT.get(f, f) for f in e.flags)
+        rows.append(f'<tr class="{"flagged" if e.flags else ""}">{tds}<td>{html.escape(flags)}</td></tr>')
+    return f'<table id="board"><thead><tr>{head}</tr></thead><tbody>{"".join(rows)}</tbody></table>'
+
+
+_SCRIPT = """
+document.querySelectorAll('#board th').forEach((th, col) => {
+  th.addEventListener('click', () => {
+    const body = document.querySelector('#board tbody');
+    const rows = Array.from(body.rows);
+    const asc = th.dataset.sorted !== 'asc';
+    document.querySelectorAll('#board th').forEach(h => delete h.dataset.sorted);
+    th.dataset.sorted = asc ? 'asc' : 'desc';
+    const num = th.dataset.type === 'num';
+    const key = r => { const c = r.cells[col]; return num ? (c.dataset.v === '' ? null : parseFloat(c.dataset.v))
+                                                          : c.textContent; };
+    rows.sort((a, b) => {
+      const x = key(a), y = key(b);
+      if (x === null || y === null) return (x === null) - (y === null);
+      return (x < y ? -1 : x > y ? 1 : 0) * (asc ? 1 : -1);
+    });
+    rows.forEach(r => body.appendChild(r));
+  });
+});
+"""
+
+_STYLE = """
+body { font-family: system-ui, sans-serif; margin: 1.5rem; color: #222; }
+table { border-collapse: collapse; font-size: 0.82rem; }
+th, td { border: 1px solid #ccc; padding: 0.2rem 0.45rem; text-align: right; white-space: nowrap; }
+th { background: #f3f3f3; cursor: pointer; user-select: none; }
+th[data-sorted="asc"]::after { content: " ▲"; } th[data-sorted="desc"]::after { content: " ▼"; }
+td:first-child, th:first-child { text-align: left; }
+tr.flagged { color: #888; }
+figure { display: inline-block; margin: 0.5rem 1rem 1rem 0; vertical-align: top; }
+figure svg { max-width: 620px; height: auto; }
+.gallery img { max-width: 900px; display: block; margin-bottom: 1rem; }
+"""
+
+
+def _json_in_html(data) -> str:
+    """JSON that cannot end its <script> element early."""
+    return json.dumps(data).replace("</", "<\\/")
+
+
+def write_report(store_path: Path, out: Path, registry: Registry, *, dataset: str | None = None) -> Path:
+    """Write ``out/index.html`` and the plots' PNG/SVG files; return the page's path."""
+    out.mkdir(parents=True, exist_ok=True)
+    info = registry.metric_info()
+    with ResultStore(store_path, readonly=True) as store:
+        entries = build_leaderboard(store, dataset=dataset, info=info, sort="ratio")
+        gallery = _gallery(store, entries)
+    figures = rd_figures(entries, info, out)
+    runtime = runtime_figure(entries, out)
+    if runtime is not None:
+        figures.append(runtime)
+    parts = [
+        "<!doctype html><html><head><meta charset='utf-8'><title>lwbench report</title>",
+        f"<style>{_STYLE}</style></head><body>",
+        "<h1>lwbench report</h1>",
+        f"<p>{len(entries)} configuration(s) on {len({e.dataset for e in entries})} dataset(s), from "
+        f"<code>{html.escape(str(store_path))}</code>. Means over frames (hover a value for its std); "
+        "flagged rows (grey) fail the quality guard; click a column to sort.</p>",
+        "<h2>Leaderboard</h2>",
+        _table(entries, info),
+        "<h2>Rate-distortion and runtime</h2>",
+        *(f"<figure><figcaption>{html.escape(f.title)}</figcaption>{f.svg}</figure>" for f in figures),
+        "<h2>Gallery</h2><div class='gallery'>",
+        *(f"<img alt='{html.escape(t)}' title='{html.escape(t)}' src='data:image/png;base64,{png}'>"
+          for t, png in gallery),
+        "</div>",
+        f"<script>{_SCRIPT}</script>",
+        f"<script type='application/json' id='data'>{_json_in_html([e.as_dict() for e in entries])}</script>",
+        "</body></html>",
+    ]
+    page = out / "index.html"
+    page.write_text("\n".join(parts))
+    return page
