@@ -4,15 +4,32 @@ Parametrized over the registry, so a new plugin is checked the moment it is inst
 bytes on the wire parse as an lwbench payload for this codec; decoding needs only the bytes
 (a fresh instance); encode and decode are deterministic; truncated, bit-flipped and foreign
 payloads raise ``PayloadError``; an empty or NaN scan gives a clear error, not a crash deep
-inside a library.
+inside a library; every frame metric can score what was decoded.
+
+Each codec meets three generated scans: a clean box room, the same room with exact duplicate
+points, and a 32-beam scan with a ring field whose derived beam table has coincident beams
+(``_scans.py``): what ordinary real scans hold (issue 11 §4), checked here without the real
+samples (``test_real_conformance.py`` adds those where they exist).
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
+from _scans import hdl32_ring_frame, with_exact_duplicates
 
-from lwbench import Frame, InvalidFrameError, LwbenchError, Payload, PayloadError, SelectionCodec, get_sensor
+from lwbench import (
+    Evaluation,
+    Frame,
+    InvalidFrameError,
+    LwbenchError,
+    Payload,
+    PayloadError,
+    SelectionCodec,
+    get_sensor,
+)
 from lwbench.registry import get_registry
 
 # Smaller settings for the slow learners, so the whole suite stays fast; the contract does not
@@ -25,8 +42,7 @@ def _params(name: str, cls) -> dict:
     return {k: v for k, v in FAST_PARAMS.get(name, {}).items() if k in declared}
 
 
-@pytest.fixture(scope="module")
-def frame() -> Frame:
+def box_room() -> Frame:
     """A VLP-16 scan inside a 6 m x 4 m box room: walls, floor and ceiling, every ray a hit."""
     sensor = get_sensor("vlp16")
     dirs = sensor.ray_directions().reshape(-1, 3)
@@ -38,14 +54,29 @@ def frame() -> Frame:
     return Frame(pts.astype(np.float32), sensor, index=3, intensity=np.full(len(pts), 0.5, np.float32))
 
 
+SCANS = {
+    "box-room": box_room,
+    "exact-duplicates": lambda: with_exact_duplicates(box_room(), share=0.25),
+    "hdl32-ring": hdl32_ring_frame,
+}
 CODECS = sorted(get_registry().codecs)
 
 
+@pytest.fixture(scope="module", params=list(SCANS))
+def frame(request) -> Frame:
+    return SCANS[request.param]()
+
+
 @pytest.fixture(scope="module", params=CODECS)
-def encoded(request, frame):
+def codec(request):
     cls = get_registry().codec(request.param)
-    params = _params(request.param, cls)
-    return request.param, cls, params, cls(**params).encode(frame)
+    return request.param, cls, _params(request.param, cls)
+
+
+@pytest.fixture(scope="module")
+def encoded(codec, frame):
+    name, cls, params = codec
+    return name, cls, params, cls(**params).encode(frame)
 
 
 def test_payload_is_an_lwbench_payload_for_this_codec(encoded):
@@ -87,8 +118,8 @@ def test_selection_codecs_select_a_subset(encoded, frame):
     assert len(np.unique(idx)) == len(idx) and 0 < len(idx) <= len(frame)
 
 
-def test_empty_scan_is_handled_or_refused_clearly(encoded):
-    name, cls, params, _ = encoded
+def test_empty_scan_is_handled_or_refused_clearly(codec):
+    name, cls, params = codec
     empty = Frame(np.zeros((0, 3), np.float32), get_sensor("vlp16"))
     try:
         data = cls(**params).encode(empty)
@@ -97,6 +128,17 @@ def test_empty_scan_is_handled_or_refused_clearly(encoded):
         return
     cloud = cls(**params).decode(data)
     assert cloud.shape[1] == 3 and np.isfinite(cloud).all()
+
+
+def test_every_frame_metric_scores_the_decoded_cloud(encoded, frame):
+    """What the runner does after decoding: a metric that raises would be a failure row."""
+    _, cls, params, data = encoded
+    ev = Evaluation(frame, data, cls(**params).decode(data), cls.kind, {"encode_ms": 1.0, "decode_ms": 1.0})
+    for metric_cls in get_registry().frame_metrics.values():
+        values = metric_cls().compute(ev)
+        assert values, metric_cls.name
+        nan = [k for k, v in values.items() if v is not None and math.isnan(v)]
+        assert not nan, f"{metric_cls.name} gave NaN for {nan}"
 
 
 def test_nan_scan_never_reaches_a_codec():
