@@ -56,7 +56,9 @@ def box_room() -> Frame:
 
 SCANS = {
     "box-room": box_room,
-    "exact-duplicates": lambda: with_exact_duplicates(box_room(), share=0.25),
+    # Every other ray of the room (half the size: the contract does not depend on it) plus
+    # exact copies of a quarter of those points.
+    "exact-duplicates": lambda: with_exact_duplicates(box_room().subset(np.arange(0, 57_600, 2)), share=0.25),
     "hdl32-ring": hdl32_ring_frame,
 }
 CODECS = sorted(get_registry().codecs)
