@@ -35,10 +35,13 @@ __all__ = [
     "codec_checks",
     "cylinder_scan",
     "dataset_checks",
-    "hdl32_like",
+    "HDL32_NOMINAL",
+    "NO_RETURN",
+    "hdl32_ring_scan",
     "room_scan",
     "tunnel_ranges",
     "tunnel_scan",
+    "with_exact_duplicates",
 ]
 
 # A 6 m x 4 m x 2.4 m room centred on the sensor: walls, floor and ceiling; every ray hits.
@@ -183,10 +186,54 @@ def _fail(check: str, message: str) -> None:
     raise ConformanceError(f"{check}: {message}")
 
 
-def hdl32_like() -> SensorModel:
-    """A 32-beam sensor with an HDL-32E-like table (-30.67 to +10.67 deg, 4/3 deg apart)."""
-    table = tuple(float(e) for e in np.linspace(-30.67, 10.67, 32))
-    return SensorModel("hdl32-like", table, 360.0 / 2170, 1.0, 80.0, 10.0)
+#: HDL-32E nominal elevations: -30.67 to +10.67 degrees in 4/3 degree steps.
+HDL32_NOMINAL = tuple(float(e) for e in np.linspace(-30.67, 10.67, 32))
+
+#: Where :func:`hdl32_ring_scan` writes a firing that got no return: one fixed point a few
+#: hundredths of a millimetre from the origin (nuScenes keeps such rays as points with a radius
+#: below 1e-4 m). Every such ray is then an exact copy of every other.
+NO_RETURN = (3e-5, -2e-5, 4e-5)
+
+
+def with_exact_duplicates(frame: Frame, share: float = 0.25, seed: int = 0) -> Frame:
+    """``frame`` plus exact copies of ``share`` of its points, shuffled in (attributes follow):
+    what nuScenes frames hold (34,752 points, 25,532 distinct) and Draco merges."""
+    rng = np.random.default_rng(seed)
+    n = len(frame)
+    idx = np.concatenate([np.arange(n), rng.integers(0, n, int(round(share * n)))])
+    return frame.subset(idx[rng.permutation(len(idx))])
+
+
+def hdl32_ring_scan(seed: int = 0, firings: int = 1086) -> Frame:
+    """A 32-beam street scan (ground 1.8 m below, building fronts 8-25 m away in some
+    directions, open sky elsewhere), ``firings`` x 32 points in firing order with a ring field,
+    like a nuScenes ``LIDAR_TOP`` sweep.
+
+    Each laser is up to 0.15 degrees off its nominal elevation. Rays that hit nothing are written
+    as :data:`NO_RETURN`, so the upper rings, which mostly see the sky, are mostly that one point
+    and their per-ring medians coincide: the sensor model derived from the ring field (as the
+    loaders derive it) has several beams at one elevation. Both are what ordinary real scans do
+    to codecs that assume clean data.
+    """
+    rng = np.random.default_rng(seed)
+    el = np.radians(np.asarray(HDL32_NOMINAL) + rng.uniform(-0.15, 0.15, 32))[:, None]
+    az = -np.pi + (np.arange(firings) + rng.uniform(0, 1, (32, 1))) * (2 * np.pi / firings)
+    wall_r = 8 + 17 * (0.5 + 0.5 * np.sin(3 * az + seed))
+    wall_top = np.where(np.sin(4 * az) > 0.3, 4.0, 0.0) - 1.8  # building fronts in some sectors
+    with np.errstate(divide="ignore"):
+        t_ground = np.where(el < 0, 1.8 / np.sin(-el), np.inf)
+    t_wall = wall_r / np.cos(el)
+    t_wall = np.where(t_wall * np.sin(el) < wall_top, t_wall, np.inf)
+    t = np.minimum(t_ground, t_wall)
+    hit = np.isfinite(t)
+    t = np.where(hit, t, 0.0) * (1 + rng.normal(0, 0.002, t.shape))
+    pts = unit_directions(az, el) * t[..., None]
+    pts[~hit] = NO_RETURN
+    points = pts.transpose(1, 0, 2).reshape(-1, 3).astype(np.float32)  # firing-major, as drivers write
+    ring = np.tile(np.arange(32, dtype=np.uint16), firings)
+    intensity = rng.uniform(0, 100, len(points)).astype(np.float32)
+    sensor = SensorModel.from_points(points, ring=ring, rate_hz=20.0, name="derived")
+    return Frame(points, sensor, index=0, intensity=intensity, ring=ring)
 
 
 @functools.cache
@@ -195,20 +242,13 @@ def check_frames() -> dict[str, Frame]:
     simulator's does not.
 
     - ``room``: a VLP-16 scan whose firings are off the range-image grid;
-    - ``duplicates``: the same with 10 % of the returns repeated exactly (nuScenes frames hold
-      such duplicates; Draco merges them);
-    - ``ring32``: a 32-beam scan with a ring field whose sensor model was derived from the
-      data (per-ring medians, off the nominal table, as for a real HDL-32E).
+    - ``exact-duplicates``: every other return of it plus exact copies of a quarter of those;
+    - ``hdl32-ring``: :func:`hdl32_ring_scan` (ring field, no-return placeholders, a derived
+      beam table with coincident beams).
     """
     room = room_scan(get_sensor("vlp16"), seed=1, dropout=0.02, index=3)
-    rng = np.random.default_rng(2)
-    repeated = rng.choice(len(room), len(room) // 10, replace=False)
-    dup_idx = np.sort(np.concatenate([np.arange(len(room)), repeated]))
-    duplicates = room.subset(dup_idx)
-    ring_scan = room_scan(hdl32_like(), seed=4, with_ring=True, half_extent=(12.0, 8.0, 3.0))
-    derived = SensorModel.from_points(ring_scan.points, ring=ring_scan.ring, rate_hz=10.0, name="derived")
-    ring32 = Frame(ring_scan.points, derived, index=5, ring=ring_scan.ring, intensity=ring_scan.intensity)
-    return {"room": room, "duplicates": duplicates, "ring32": ring32}
+    half = room.subset(np.arange(0, len(room), 2))
+    return {"room": room, "exact-duplicates": with_exact_duplicates(half, 0.25), "hdl32-ring": hdl32_ring_scan()}
 
 
 def codec_checks(codec_cls, params: dict | None = None) -> list[tuple[str, object]]:
@@ -297,7 +337,20 @@ def codec_checks(codec_cls, params: dict | None = None) -> list[tuple[str, objec
                 if got != k:
                     _fail("selection", f"{label}: points={k} kept {got} points (a budget is met exactly)")
 
-    checks = [declared, payloads, deterministic, corrupt, empty_scan, selection]
+    def scored() -> None:
+        from lwbench.metric import Evaluation
+        from lwbench.registry import get_registry
+
+        for label, frame in check_frames().items():
+            data = codec_cls(**params).encode(frame)
+            ev = Evaluation(frame, data, codec_cls(**params).decode(data), codec_cls.kind, {"encode_ms": 1.0})
+            for metric in get_registry().frame_metric_instances():
+                values = metric.compute(ev)
+                nan = [k for k, v in values.items() if v is not None and v != v]
+                if not values or nan:
+                    _fail("scored", f"{label}: metric {metric.name} gave {'NaN for ' + str(nan) if nan else 'nothing'}")
+
+    checks = [declared, payloads, deterministic, corrupt, empty_scan, selection, scored]
     return [(f.__name__, f) for f in checks]
 
 

@@ -17,8 +17,9 @@ So the pairing is done on the returns' directions, relative to each other:
   a window one cell in size centred on ``p`` itself);
 - returns are paired **one-to-one, nearest first** (by 3-D distance among the candidates);
 - ``range_rmsd`` = RMSD of ``|p| - |q|`` over the pairs; ``coverage`` = share of original
-  returns with a partner; ``false_returns`` = share of decoded returns that are no original
-  return's partner and have no original return within the tolerance.
+  returns with a partner (bit-identical duplicates in the scan count as one return);
+  ``false_returns`` = share of decoded returns that are no original return's partner and have
+  no original return within the tolerance.
 
 Why one-to-one and nearest first, rather than "each original with its nearest decoded return
 in direction": real scans hold several returns within one window (at short range each laser's
@@ -55,13 +56,20 @@ __all__ = ["RangeMetric", "direction_coordinates", "match_returns"]
 _BEAM_MARGIN = 16.0
 
 
+def distinct_rows(points: np.ndarray) -> np.ndarray:
+    """The points with bit-identical rows kept once (order of first appearance)."""
+    p = np.ascontiguousarray(points, dtype=np.float32)
+    _, first = np.unique(p.view(np.dtype((np.void, 12))).ravel(), return_index=True)
+    return p if len(first) == len(p) else p[np.sort(first)]
+
+
 def direction_coordinates(points: np.ndarray, sensor: SensorModel) -> tuple[np.ndarray, np.ndarray]:
     """``(N, 2)`` coordinates (azimuth in steps in ``[0, n_azimuth)``, elevation as a beam index
     shifted into the tree's box) and the ranges; zero-range points get NaN coordinates."""
     r, az, el = spherical(points)
     col = np.mod((az + math.pi) / sensor.azimuth_step_rad, sensor.n_azimuth)
     col = np.where(col >= sensor.n_azimuth, 0.0, col)  # mod can round up to the period itself
-    beams = sensor.elevations_rad
+    beams = _distinct_beams(sensor)
     if len(beams) == 1:
         # One beam (a 2-D laser): no beam spacing; elevation in azimuth steps keeps it isotropic.
         row = (el - beams[0]) / sensor.azimuth_step_rad
@@ -77,8 +85,16 @@ def direction_coordinates(points: np.ndarray, sensor: SensorModel) -> tuple[np.n
     return coords, r
 
 
+def _distinct_beams(sensor: SensorModel) -> np.ndarray:
+    """The beam elevations with coincident ones merged: a table derived from a scan can hold
+    several beams at one elevation (rings that mostly recorded one no-return placeholder), and
+    a zero gap has no "half the spacing"."""
+    e = sensor.elevations_rad
+    return e[np.r_[True, np.diff(e) > 1e-9]]
+
+
 def _box_rows(sensor: SensorModel) -> float:
-    return sensor.n_beams - 1 + 2 * _BEAM_MARGIN + 1.0
+    return len(_distinct_beams(sensor)) - 1 + 2 * _BEAM_MARGIN + 1.0
 
 
 def _tree(coords: np.ndarray, sensor: SensorModel) -> cKDTree:
@@ -87,34 +103,78 @@ def _tree(coords: np.ndarray, sensor: SensorModel) -> cKDTree:
     return cKDTree(coords, boxsize=[float(sensor.n_azimuth), _box_rows(sensor) + 4 * _BEAM_MARGIN])
 
 
+# Candidates per original return: the nearest few decoded returns (in direction) within its
+# window. Real scans have one or two; the cap keeps a cluster of near-identical points (a GMM's
+# draws piled on one spot) from making the candidate set quadratic.
+MAX_CANDIDATES = 8
+_MAX_ROUNDS = 32
+
+
+def _exact_pairs(p: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Bit-identical returns matched one-to-one (a value held by ``m`` originals and ``n``
+    decoded returns gives ``min(m, n)`` pairs): a kept or losslessly reproduced return pairs
+    with itself, whatever else shares its window -- exact duplicates included."""
+    pk = np.ascontiguousarray(p, dtype=np.float32).view(np.uint32).reshape(-1, 3)
+    qk = np.ascontiguousarray(q, dtype=np.float32).view(np.uint32).reshape(-1, 3)
+    keys = np.concatenate([pk, qk])
+    src = np.r_[np.zeros(len(pk), np.int8), np.ones(len(qk), np.int8)]
+    order = np.lexsort((src, keys[:, 2], keys[:, 1], keys[:, 0]))  # equal rows together, originals first
+    sk, ss = keys[order], src[order]
+    start = np.r_[True, np.any(sk[1:] != sk[:-1], axis=1)]
+    group = np.cumsum(start) - 1
+    first = np.flatnonzero(start)
+    n_p = np.bincount(group[ss == 0], minlength=len(first))
+    n_q = np.bincount(group[ss == 1], minlength=len(first))
+    pos = np.arange(len(order)) - first[group]  # position within the group
+    rank = np.where(ss == 0, pos, pos - n_p[group])
+    keep = rank < np.minimum(n_p, n_q)[group]
+    # Within a group both sides are in index order, so the kept ones align pair by pair.
+    pa = order[keep & (ss == 0)]
+    qb = order[keep & (ss == 1)] - len(pk)
+    return pa, qb
+
+
 def _greedy_matching(i: np.ndarray, j: np.ndarray, cost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """One-to-one matching of candidate pairs ``(i[k], j[k])``, cheapest first.
 
     The same result as taking the pairs in order of ``cost`` (ties by ``i``, ``j``) and keeping
-    each whose two ends are both still free, computed in rounds of "locally dominant" pairs --
-    a pair that is the best remaining one of both its ends is in the greedy matching -- so the
-    work is numpy array passes, not a Python loop over ~10^5 pairs. Real scans need a few rounds.
+    each whose two ends are both still free, computed mostly in rounds of "locally dominant"
+    pairs -- a pair that is the best remaining one of both its ends is in the greedy matching --
+    so the work is numpy array passes; real scans need a few rounds. Whatever is left after
+    ``_MAX_ROUNDS`` (long chains of near-ties) is finished in order by a plain loop.
     """
+    if not len(i):
+        return i, j
     order = np.lexsort((j, i, cost))
     i, j = i[order], j[order]
     alive = np.ones(len(i), dtype=bool)
+    taken_i = np.zeros(int(i.max()) + 1, dtype=bool)
+    taken_j = np.zeros(int(j.max()) + 1, dtype=bool)
     mi, mj = [], []
-    while alive.any():
+    for _ in range(_MAX_ROUNDS):
         k = np.flatnonzero(alive)
+        if not len(k):
+            break
         _, first_i = np.unique(i[k], return_index=True)
         _, first_j = np.unique(j[k], return_index=True)
-        best_i = np.zeros(len(k), dtype=bool)
-        best_i[first_i] = True
+        best = np.zeros(len(k), dtype=bool)
+        best[first_i] = True
         best_j = np.zeros(len(k), dtype=bool)
         best_j[first_j] = True
-        chosen = k[best_i & best_j]
+        chosen = k[best & best_j]
         mi.append(i[chosen])
         mj.append(j[chosen])
-        taken_i = np.zeros(int(i.max()) + 1, dtype=bool)
-        taken_j = np.zeros(int(j.max()) + 1, dtype=bool)
         taken_i[i[chosen]] = True
         taken_j[j[chosen]] = True
         alive &= ~(taken_i[i] | taken_j[j])
+    rest_i, rest_j = [], []
+    for a, b in zip(i[alive].tolist(), j[alive].tolist(), strict=True):
+        if not taken_i[a] and not taken_j[b]:
+            taken_i[a] = taken_j[b] = True
+            rest_i.append(a)
+            rest_j.append(b)
+    mi.append(np.asarray(rest_i, dtype=np.int64))
+    mj.append(np.asarray(rest_j, dtype=np.int64))
     return np.concatenate(mi), np.concatenate(mj)
 
 
@@ -129,30 +189,41 @@ def match_returns(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Pair original and decoded returns one-to-one within the direction window.
 
-    Candidates are the decoded returns within ``tolerance`` spacings of an original return
-    along both axes (a Chebyshev ball in the spacing-scaled coordinates); among them returns are
-    matched nearest-first by 3-D distance, each original and each decoded return at most once.
-    Returns, per original return, its partner's index in ``q`` (``-1``: none) and, per decoded
-    return, whether any original return lies within its window.
+    First bit-identical returns pair with each other (:func:`_exact_pairs`). The rest: a decoded
+    return is a candidate for an original one when it lies within ``tolerance`` spacings of it
+    along both axes (a Chebyshev ball in the spacing-scaled coordinates; the nearest
+    :data:`MAX_CANDIDATES`), and candidates are matched nearest-first by 3-D distance, each
+    return at most once. Returns, per original return, its partner's index in ``q`` (``-1``:
+    none) and, per decoded return, whether any original return lies within its window.
     """
-    p_idx = np.flatnonzero(np.isfinite(p_coords[:, 0]))
-    q_idx = np.flatnonzero(np.isfinite(q_coords[:, 0]))
     partner = np.full(len(p_coords), -1, dtype=np.int64)
     near_p = np.zeros(len(q_coords), dtype=bool)
+    p_idx = np.flatnonzero(np.isfinite(p_coords[:, 0]))
+    q_idx = np.flatnonzero(np.isfinite(q_coords[:, 0]))
     if not len(p_idx) or not len(q_idx):
         return partner, near_p
+    bound = float(np.nextafter(tolerance, np.inf))
     if p_tree is None:
         p_tree = _tree(p_coords[p_idx], sensor)
-    q_tree = _tree(q_coords[q_idx], sensor)
-    bound = float(np.nextafter(tolerance, np.inf))
-    cand = p_tree.sparse_distance_matrix(q_tree, bound, p=np.inf, output_type="ndarray")
-    if not len(cand):
+    dist, _ = p_tree.query(q_coords[q_idx], k=1, p=np.inf, distance_upper_bound=bound, workers=-1)
+    near_p[q_idx] = np.isfinite(dist)
+    pa, qb = _exact_pairs(np.asarray(p_points)[p_idx], np.asarray(q_points)[q_idx])
+    partner[p_idx[pa]] = q_idx[qb]
+    free_p = p_idx[np.isin(np.arange(len(p_idx)), pa, invert=True)]
+    free_q = q_idx[np.isin(np.arange(len(q_idx)), qb, invert=True)]
+    if not len(free_p) or not len(free_q):
         return partner, near_p
-    a, b = cand["i"].astype(np.int64), cand["j"].astype(np.int64)
-    near_p[q_idx[np.unique(b)]] = True
-    gap = np.asarray(p_points, np.float64)[p_idx[a]] - np.asarray(q_points, np.float64)[q_idx[b]]
+    k = min(MAX_CANDIDATES, len(free_q))
+    dist, j = _tree(q_coords[free_q], sensor).query(
+        p_coords[free_p], k=k, p=np.inf, distance_upper_bound=bound, workers=-1
+    )
+    dist, j = dist.reshape(len(free_p), k), j.reshape(len(free_p), k)
+    ok = np.isfinite(dist)
+    a = np.repeat(np.arange(len(free_p)), k)[ok.ravel()]
+    b = j.ravel()[ok.ravel()]
+    gap = np.asarray(p_points, np.float64)[free_p[a]] - np.asarray(q_points, np.float64)[free_q[b]]
     ma, mb = _greedy_matching(a, b, np.einsum("ij,ij->i", gap, gap))
-    partner[p_idx[ma]] = q_idx[mb]
+    partner[free_p[ma]] = free_q[mb]
     return partner, near_p
 
 
@@ -177,11 +248,13 @@ class RangeMetric(FrameMetric):
     def compute(self, ev: Evaluation) -> dict[str, float | None]:
         sensor = ev.frame.sensor
         tol = self.config["tolerance"]
-        p_coords, p_range = ev.cached("direction_coordinates", lambda: direction_coordinates(ev.frame.points, sensor))
+        # Exact duplicates in the scan are one return (nuScenes writes them, Draco merges them).
+        p_points = ev.cached("distinct_points", lambda: distinct_rows(ev.frame.points))
+        p_coords, p_range = ev.cached("direction_coordinates", lambda: direction_coordinates(p_points, sensor))
         p_ok = np.isfinite(p_coords[:, 0])
         p_tree = ev.cached("direction_tree", lambda: _tree(p_coords[p_ok], sensor)) if p_ok.any() else None
         q_coords, q_range = direction_coordinates(ev.decoded, sensor)
-        partner, near_p = match_returns(ev.frame.points, ev.decoded, p_coords, q_coords, sensor, tol, p_tree)
+        partner, near_p = match_returns(p_points, ev.decoded, p_coords, q_coords, sensor, tol, p_tree)
         n_p, n_q = int(p_ok.sum()), len(q_coords)
         paired = partner >= 0
         diff = p_range[paired] - q_range[partner[paired]]

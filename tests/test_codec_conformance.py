@@ -1,10 +1,14 @@
-"""The contract every registered codec must keep (the gate third-party codecs meet too).
+"""The contract every registered codec and dataset must keep -- checked with the same kit a
+third-party plugin runs in its own tests (:mod:`lwbench.testing`).
 
-Parametrized over the registry, so a new plugin is checked the moment it is installed:
-bytes on the wire parse as an lwbench payload for this codec; decoding needs only the bytes
-(a fresh instance); encode and decode are deterministic; truncated, bit-flipped and foreign
-payloads raise ``PayloadError``; an empty or NaN scan gives a clear error, not a crash deep
-inside a library.
+Parametrized over the registry, so a new plugin is checked the moment it is installed, one test
+per (codec, check): valid declarations; bytes on the wire that parse as an lwbench payload for
+this codec; a fresh instance decoding from the bytes alone to a finite float32 cloud; determinism;
+truncated, bit-flipped, foreign and empty payloads raising ``PayloadError``; empty scans handled
+or refused clearly; selectors meeting their budget; every frame metric scoring the result. Each
+runs on :func:`lwbench.testing.check_frames`: an off-grid room, the same with exact duplicate
+points, and a 32-beam ring scan whose derived table has coincident beams -- what ordinary real
+scans hold (``test_real_conformance.py`` adds the real samples where they exist).
 """
 
 from __future__ import annotations
@@ -12,91 +16,36 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lwbench import Frame, InvalidFrameError, LwbenchError, Payload, PayloadError, SelectionCodec, get_sensor
+from lwbench import Frame, InvalidFrameError, get_sensor
 from lwbench.registry import get_registry
+from lwbench.testing import codec_checks, dataset_checks
 
 # Smaller settings for the slow learners, so the whole suite stays fast; the contract does not
 # depend on model size.
-FAST_PARAMS = {"gmm": {"n_components": 8, "max_iter": 20}, "vsgp": {"num_inducing": 100}}
+FAST_PARAMS = {"gmm": {"n_components": 8, "max_iter": 20, "fit_points": 4000}, "vsgp": {"num_inducing": 100}}
+REGISTRY = get_registry()
+CASES = [
+    (name, check)
+    for name, cls in sorted(REGISTRY.codecs.items())
+    for check, _ in codec_checks(cls, FAST_PARAMS.get(name))
+]
 
 
-def _params(name: str, cls) -> dict:
-    declared = {p.name for p in cls.all_params()}
-    return {k: v for k, v in FAST_PARAMS.get(name, {}).items() if k in declared}
+@pytest.mark.parametrize("codec, check", CASES, ids=[f"{c}-{k}" for c, k in CASES])
+def test_codec_contract(codec, check):
+    cls = REGISTRY.codec(codec)
+    dict(codec_checks(cls, FAST_PARAMS.get(codec)))[check]()
 
 
-@pytest.fixture(scope="module")
-def frame() -> Frame:
-    """A VLP-16 scan inside a 6 m x 4 m box room: walls, floor and ceiling, every ray a hit."""
-    sensor = get_sensor("vlp16")
-    dirs = sensor.ray_directions().reshape(-1, 3)
-    half = np.array([3.0, 2.0, 1.2])
-    with np.errstate(divide="ignore"):
-        t = np.min(np.where(np.abs(dirs) > 1e-9, half / np.abs(dirs), np.inf), axis=1)
-    rng = np.random.default_rng(0)
-    pts = dirs * (t + rng.normal(0, 0.01, len(t)))[:, None]
-    return Frame(pts.astype(np.float32), sensor, index=3, intensity=np.full(len(pts), 0.5, np.float32))
+def _dataset_params(name: str, kitti_folder) -> dict:
+    return {"sim": {"scene": "indoor", "frames": 2}, "kitti": {"path": str(kitti_folder)},
+            "files": {"path": str(kitti_folder / "velodyne" / "000000.bin")}}.get(name, {})
 
 
-CODECS = sorted(get_registry().codecs)
-
-
-@pytest.fixture(scope="module", params=CODECS)
-def encoded(request, frame):
-    cls = get_registry().codec(request.param)
-    params = _params(request.param, cls)
-    return request.param, cls, params, cls(**params).encode(frame)
-
-
-def test_payload_is_an_lwbench_payload_for_this_codec(encoded):
-    name, _, _, data = encoded
-    assert isinstance(data, bytes)
-    assert Payload.from_bytes(data).codec_id == name
-
-
-def test_decode_from_the_bytes_alone_is_a_finite_cloud(encoded):
-    _, cls, params, data = encoded
-    cloud = cls(**params).decode(data)
-    assert cloud.ndim == 2 and cloud.shape[1] == 3 and cloud.dtype == np.float32
-    assert len(cloud) > 0 and np.isfinite(cloud).all()
-
-
-def test_encode_and_decode_are_deterministic(encoded, frame):
-    _, cls, params, data = encoded
-    assert cls(**params).encode(frame) == data
-    np.testing.assert_array_equal(cls(**params).decode(data), cls(**params).decode(data))
-
-
-def test_corrupt_payloads_raise_the_payload_error(encoded):
-    name, cls, params, data = encoded
-    decoder = cls(**params)
-    for bad in (data[: len(data) // 2], data[:-1], data[:-1] + bytes([data[-1] ^ 1])):
-        with pytest.raises(PayloadError):
-            decoder.decode(bad)
-    other = "raw" if name != "raw" else "random"
-    foreign = get_registry().codec(other)().encode(Frame(np.ones((5, 3), np.float32), get_sensor("vlp16")))
-    with pytest.raises(PayloadError):
-        decoder.decode(foreign)
-
-
-def test_selection_codecs_select_a_subset(encoded, frame):
-    name, cls, params, _ = encoded
-    if not issubclass(cls, SelectionCodec):
-        pytest.skip(f"{name} is a representation codec")
-    idx = cls(**params).select(frame)
-    assert len(np.unique(idx)) == len(idx) and 0 < len(idx) <= len(frame)
-
-
-def test_empty_scan_is_handled_or_refused_clearly(encoded):
-    name, cls, params, _ = encoded
-    empty = Frame(np.zeros((0, 3), np.float32), get_sensor("vlp16"))
-    try:
-        data = cls(**params).encode(empty)
-    except (LwbenchError, ValueError) as exc:
-        assert str(exc), f"{name} refused an empty scan without a message"
-        return
-    cloud = cls(**params).decode(data)
-    assert cloud.shape[1] == 3 and np.isfinite(cloud).all()
+@pytest.mark.parametrize("dataset", sorted(REGISTRY.datasets))
+def test_dataset_contract(dataset, kitti_folder):
+    for _, check in dataset_checks(REGISTRY.dataset(dataset), _dataset_params(dataset, kitti_folder)):
+        check()
 
 
 def test_nan_scan_never_reaches_a_codec():

@@ -1,4 +1,5 @@
-"""Range-image codec: exact lossless image, quantized error <= step/2, self-contained bytes."""
+"""Range-image codec: exact lossless image, quantized error <= step/2, self-contained bytes,
+beam tables the decoder always accepts."""
 
 from __future__ import annotations
 
@@ -8,15 +9,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 from lwbench_plugins.rangeimage import RangeImageCodec, pack_image, unpack_image
+from lwbench_plugins.rangeimage.beams import fit_beam_table, offset_code_bounds, read_beam_table
 
 from lwbench import Frame, Payload, PayloadError, SensorModel, get_sensor
+from lwbench.testing import NO_RETURN, hdl32_ring_scan
 
-OUSTER = Path("/work/shared/data/real/ouster_os1-128_seq3")
 
-
-def ouster_sensor() -> SensorModel:
+def ouster_sensor(folder: Path) -> SensorModel:
     """The recording's own beam table (not the uniform preset)."""
-    meta = json.loads((OUSTER / "sensor_metadata.json").read_text())
+    meta = json.loads((folder / "sensor_metadata.json").read_text())
     return SensorModel("os1-128-seq3", tuple(meta["beam_altitude_angles"]), 360 / 1024, 0.3, 120.0, 10.0)
 
 
@@ -164,10 +165,10 @@ def test_corrupt_payloads_raise_payload_error() -> None:
         codec.decode(_rewrap(lossless, nan_body, predict="none", shuffle=False))
 
 
-@pytest.mark.skipif(not OUSTER.exists(), reason="real Ouster sample not available")
-def test_real_ouster_scan() -> None:
-    pts = np.fromfile(OUSTER / "000000.bin", dtype=np.float32).reshape(-1, 4)[:, :3]
-    frame = Frame(pts, ouster_sensor())
+def test_real_ouster_scan(real_data: Path) -> None:
+    ouster = real_data / "ouster_os1-128_seq3"
+    pts = np.fromfile(ouster / "000000.bin", dtype=np.float32).reshape(-1, 4)[:, :3]
+    frame = Frame(pts, ouster_sensor(ouster))
     image = frame.sensor.project(pts).ranges
     for step in (0.01, 0.05):
         data = RangeImageCodec(step=step).encode(frame)
@@ -262,3 +263,97 @@ def test_quantized_ranges_stay_inside_the_sensor_window() -> None:
     again = s.project(decoded).ranges
     assert (again > 0).all()
     assert np.abs(again - ranges).max() <= 0.025 + 1e-5
+
+
+def test_ring_derived_table_with_coincident_beams_round_trips() -> None:
+    """Issue 11: a 32-beam scan with a ring field, whose sky-facing rings mostly hold the
+    sensor's "no return" point, so their per-ring medians -- the derived beam table --
+    coincide. Version 2 wrote a beam table its own decoder refused ("beam elevation offset
+    leaves the beam's band"): the allowed band of a beam between coincident neighbours was
+    empty, and clipping into it returned its upper end, below its lower end."""
+    frame = hdl32_ring_scan()
+    s = frame.sensor
+    e = np.asarray(s.elevations_deg)
+    no_return_el = np.degrees(np.arcsin(NO_RETURN[2] / np.linalg.norm(NO_RETURN)))
+    coincident = np.isclose(e, no_return_el)
+    assert coincident.sum() >= 3  # the condition that broke version 2
+    image = s.project(frame.points)
+    for mode in ("quantized", "lossless"):
+        data = RangeImageCodec(mode=mode).encode(frame)
+        decoded = RangeImageCodec().decode(data)
+        assert len(decoded) == int(image.valid.sum())
+        _, ranges = RangeImageCodec().decode_image(data)
+        np.testing.assert_array_equal(ranges > 0, image.valid)
+    np.testing.assert_array_equal(ranges, image.ranges)  # lossless: bit for bit
+    # Away from the coincident beams, refined points still fall back into their own cells.
+    again = s.project(decoded)
+    ordinary = ~coincident[:, None] & image.valid
+    assert (again.valid | ~ordinary).all()
+    np.testing.assert_allclose(again.ranges[ordinary], image.ranges[ordinary], rtol=1e-5)
+
+
+def _points_at(sensor: SensorModel, el: np.ndarray, n_az: int = 64) -> np.ndarray:
+    az = np.linspace(-np.pi, np.pi, n_az, endpoint=False) + 1e-3
+    el, az = np.meshgrid(el, az, indexing="ij")
+    d = np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], -1).reshape(-1, 3)
+    return (d * 10.0).astype(np.float32)
+
+
+@pytest.mark.parametrize(
+    "table",
+    [
+        np.linspace(-15, 15, 16),  # VLP-16
+        np.r_[np.linspace(-30, -2, 29), -1.0, -1.0, -1.0],  # three coincident beams
+        np.r_[-20.0, -1.0, -1.0 + 1e-3, -1.0 + 2e-3, 5.0],  # closer than the margins
+        np.r_[-1.0, -1.0],  # nothing but one elevation
+        np.r_[-70.0, 0.0, 70.0],  # bands wider than the int16 cap
+        np.r_[3.0],  # one beam
+    ],
+    ids=["vlp16", "coincident", "sub-margin", "all-equal", "wide", "single"],
+)
+def test_encoder_writes_only_offset_codes_the_decoder_accepts(table: np.ndarray) -> None:
+    """Whatever the table and wherever the returns lie (on the band edges, or far outside
+    the outer beams), the codes fit in int16, include 0, and read back."""
+    s = SensorModel("t", tuple(table), 360 / 64, 0.1, 100.0, 10.0)
+    q_lo, q_hi = offset_code_bounds(s)
+    assert (q_lo <= 0).all() and (q_hi >= 0).all() and q_lo.min() >= -32768 and q_hi.max() <= 32767
+    e = s.elevations_rad
+    mids = (e[1:] + e[:-1]) / 2
+    # Every allowed code keeps the beam's ray inside its projection band (not towards a
+    # neighbour it coincides with, which has no band to move into).
+    assert (e[1:] + q_lo[1:] * 1e-5 >= mids - 1e-12).all() and (e[:-1] + q_hi[:-1] * 1e-5 <= mids + 1e-12).all()
+    el = np.r_[e, mids, mids - 1e-9, mids + 1e-9, e[0] - 1.2, e[-1] + 1.2]
+    el = el[np.abs(el) < np.pi / 2 - 1e-3]
+    pts = _points_at(s, el)
+    for chosen in (slice(None), np.isin(el, mids - 1e-9), np.isin(el, mids + 1e-9)):
+        sub = _points_at(s, el[chosen])
+        image = s.project(sub)
+        table_bytes = fit_beam_table(s, sub, image)
+        _, offset = read_beam_table(table_bytes, s)  # would raise PayloadError if refused
+        codes = np.rint(offset / 1e-5)
+        assert ((codes >= q_lo) & (codes <= q_hi)).all()
+    frame = Frame(pts, s)
+    RangeImageCodec().decode(RangeImageCodec().encode(frame))
+
+
+def test_decoder_accepts_exactly_the_allowed_offset_codes() -> None:
+    import zstandard
+
+    frame, _, _ = beam_offset_scan()
+    data = RangeImageCodec(refine="beam").encode(frame)
+    p = Payload.from_bytes(data)
+    raw = bytearray(zstandard.ZstdDecompressor().decompress(p.body))
+    n = frame.sensor.n_beams
+    q_lo, q_hi = offset_code_bounds(frame.sensor)
+
+    def decode_with(beam: int, code: int) -> np.ndarray:
+        table = bytearray(raw)
+        table[n + 2 * beam : n + 2 * beam + 2] = np.array([code], "<i2").tobytes()
+        body = zstandard.ZstdCompressor().compress(bytes(table))
+        return RangeImageCodec().decode(Payload(p.codec_id, p.meta, body, p.pose).to_bytes())
+
+    for beam in (0, 7, n - 1):
+        assert len(decode_with(beam, int(q_lo[beam]))) == len(decode_with(beam, int(q_hi[beam])))
+        for code in (int(q_lo[beam]) - 1, int(q_hi[beam]) + 1):
+            with pytest.raises(PayloadError):
+                decode_with(beam, code)

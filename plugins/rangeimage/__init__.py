@@ -63,7 +63,8 @@ class RangeImageCodec(RepresentationCodec):
 
     name = "rangeimage"
     in_default_run = True
-    version = "2"
+    version = "3"  # 3: beam-offset codes clipped to the bounds the decoder checks (2 could
+    # write a table its decoder refused when beams coincide)
     description = "beam x azimuth range image, quantized ranges, row-delta + zstd"
     params = (
         Param("mode", "str", "quantized", "quantized (error <= step/2) or lossless (exact float32 image)",

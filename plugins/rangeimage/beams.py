@@ -16,6 +16,15 @@ column-aligned, it changes nothing (measured in ``docs/codecs.md``).
 Table layout: ``n_beams`` phases as uint8 codes ``q`` (phase ``(q + 0.5) / 255``, so the cell
 centre ``q = 127`` is exact), then ``n_beams`` elevation offsets as little-endian int16 in units
 of ``1e-5`` rad.
+
+The encoder and the decoder share one set of allowed offset *codes* per beam
+(:func:`offset_code_bounds`): the encoder clips its codes into it and the decoder accepts
+exactly it, so no table the encoder writes can be refused. The set always holds code 0 (the
+table's own ray). That matters for beam tables with (nearly) coincident beams, which the
+per-ring medians of :meth:`SensorModel.from_points` give when several rings mostly hold one
+placeholder point (a sensor writing "no return" as a fixed point next to the origin): a
+beam's band then is narrower than the two margins, and clipping a float offset into the
+inverted interval ``[lo, hi]`` (what version 2 did) wrote a code below ``lo``.
 """
 
 from __future__ import annotations
@@ -26,25 +35,32 @@ import numpy as np
 
 from lwbench import PayloadError, RangeImage, SensorModel
 
-__all__ = ["fit_beam_table", "read_beam_table", "table_size", "unproject_refined"]
+__all__ = ["fit_beam_table", "offset_code_bounds", "read_beam_table", "table_size", "unproject_refined"]
 
 _LEVELS = 255
 _ELEV_UNIT = 1e-5  # rad
-_MARGIN = 3e-5  # rad kept from the band edge so rounding never crosses into the next beam
+_MARGIN = 3e-5  # rad kept from the band edge so float rounding never crosses into the next beam
+_CAP_CODES = 30000  # outer beams: |offset| <= 0.3 rad, well inside int16
 
 
 def table_size(sensor: SensorModel) -> int:
     return 3 * sensor.n_beams
 
 
-def _bands(sensor: SensorModel) -> tuple[np.ndarray, np.ndarray]:
-    """Allowed elevation offsets per beam: up to half-way to each neighbour (the projection's
-    nearest-beam boundaries), minus a margin; the outer beams are capped at the int16 range."""
-    gaps = np.diff(sensor.elevations_rad)
-    cap = 30000 * _ELEV_UNIT
-    lo = np.r_[-cap, -gaps / 2 + _MARGIN]
-    hi = np.r_[gaps / 2 - _MARGIN, cap]
-    return np.maximum(lo, -cap), np.minimum(hi, cap)
+def offset_code_bounds(sensor: SensorModel) -> tuple[np.ndarray, np.ndarray]:
+    """Smallest and largest int16 elevation-offset code allowed per beam (int64 arrays).
+
+    A beam may move up to half-way to each neighbour (the projection's nearest-beam
+    boundaries) less ``_MARGIN``; where that is negative (neighbours closer than two margins)
+    it may not move towards that neighbour at all, so the band always contains 0. The outer
+    beams are capped inside the int16 range. The bounds are rounded *inwards* to whole codes,
+    so every allowed code decodes inside the band.
+    """
+    half = np.maximum(np.diff(sensor.elevations_rad) / 2 - _MARGIN, 0.0)
+    cap = _CAP_CODES * _ELEV_UNIT
+    lo = np.maximum(np.r_[-cap, -half], -cap)
+    hi = np.minimum(np.r_[half, cap], cap)
+    return np.ceil(lo / _ELEV_UNIT).astype(np.int64), np.floor(hi / _ELEV_UNIT).astype(np.int64)
 
 
 def fit_beam_table(sensor: SensorModel, points: np.ndarray, image: RangeImage) -> bytes:
@@ -60,8 +76,8 @@ def fit_beam_table(sensor: SensorModel, points: np.ndarray, image: RangeImage) -
     r = np.linalg.norm(p, axis=1)
     alpha = np.arcsin(np.clip(p[:, 2] / np.where(r > 0, r, 1.0), -1.0, 1.0))
     offset = np.bincount(rows, weights=alpha - sensor.elevations_rad[rows], minlength=nb) / safe
-    lo, hi = _bands(sensor)
-    offset_q = np.rint(np.clip(offset, lo, hi) / _ELEV_UNIT)
+    q_lo, q_hi = offset_code_bounds(sensor)
+    offset_q = np.clip(np.rint(offset / _ELEV_UNIT), q_lo, q_hi)
     return phase_q.astype(np.uint8).tobytes() + offset_q.astype("<i2").tobytes()
 
 
@@ -73,11 +89,11 @@ def read_beam_table(raw: bytes, sensor: SensorModel) -> tuple[np.ndarray, np.nda
     phase_q = np.frombuffer(raw, dtype=np.uint8, count=nb)
     if (phase_q >= _LEVELS).any():
         raise PayloadError("rangeimage payload: beam phase code out of range")
-    offset = np.frombuffer(raw, dtype="<i2", offset=nb).astype(np.float64) * _ELEV_UNIT
-    lo, hi = _bands(sensor)
-    if (offset < lo - _ELEV_UNIT).any() or (offset > hi + _ELEV_UNIT).any():
+    offset_q = np.frombuffer(raw, dtype="<i2", offset=nb).astype(np.int64)
+    q_lo, q_hi = offset_code_bounds(sensor)
+    if (offset_q < q_lo).any() or (offset_q > q_hi).any():
         raise PayloadError("rangeimage payload: beam elevation offset leaves the beam's band")
-    return (phase_q + 0.5) / _LEVELS, offset
+    return (phase_q + 0.5) / _LEVELS, offset_q * _ELEV_UNIT
 
 
 def unproject_refined(sensor: SensorModel, ranges: np.ndarray, phase: np.ndarray,
