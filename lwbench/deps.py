@@ -5,7 +5,9 @@ fresh Debian/Ubuntu machine does not have, so a plain ``import open3d`` fails th
 ``ImportError: libusb-1.0.so.0: cannot open shared object file``. The ``libusb-package`` wheel
 (a dependency of lwbench) ships that library; loading it with ``RTLD_GLOBAL`` before Open3D is
 imported satisfies the dynamic linker, so ``pip install lwbench`` alone is enough -- no apt step.
-A system libusb, when present, is used instead.
+A system libusb, when present, is used instead -- unless ``LWBENCH_LIBUSB=package`` asks for the
+wheel's copy (a broken system library, or a test that proves the pip-only path on a machine that
+has one).
 
 Every module of lwbench and of its plugins gets Open3D through :func:`import_open3d` (never a
 top-level ``import open3d``), which keeps ``lwbench list`` fast and turns a broken install into
@@ -16,6 +18,7 @@ from __future__ import annotations
 
 import ctypes
 import functools
+import os
 from types import ModuleType
 
 from lwbench.errors import MissingDependencyError
@@ -33,11 +36,12 @@ def preload_libusb() -> str | None:
     The system library wins when the dynamic linker finds one; otherwise the copy shipped by
     the ``libusb-package`` wheel is loaded into the global symbol namespace.
     """
-    try:
-        ctypes.CDLL(_SYSTEM_LIBUSB, mode=ctypes.RTLD_GLOBAL)
-        return _SYSTEM_LIBUSB
-    except OSError:
-        pass
+    if os.environ.get("LWBENCH_LIBUSB", "").lower() != "package":
+        try:
+            ctypes.CDLL(_SYSTEM_LIBUSB, mode=ctypes.RTLD_GLOBAL)
+            return _SYSTEM_LIBUSB
+        except OSError:
+            pass
     try:
         import libusb_package
     except ImportError:

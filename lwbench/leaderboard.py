@@ -272,7 +272,8 @@ def build_leaderboard(
     return sorted(entries, key=sort_key)
 
 
-def _fmt(v: float | None) -> str:
+def format_value(v: float | None) -> str:
+    """A number as every table prints it (3 significant digits, thousands separated)."""
     if v is None:
         return "–"
     if math.isinf(v):
@@ -292,10 +293,10 @@ def _fmt(v: float | None) -> str:
 def _cell(e: LeaderboardEntry, metric: str, with_std: bool) -> str:
     if metric in _LOCALIZATION_IDS and not e.localization_meaningful and e.value(metric) is not None:
         return "n/m"  # the original scans fail ICP here: no codec's figure means anything
-    text = _fmt(e.value(metric))
+    text = format_value(e.value(metric))
     std = e.value(metric, "std")
     if with_std and std is not None and e.value(metric) is not None:
-        text += f" ± {_fmt(std)}"
+        text += f" ± {format_value(std)}"
     return text
 
 

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lwbench.leaderboard import FLAG_TEXT, LeaderboardEntry, build_leaderboard, header_name
+from lwbench.leaderboard import FLAG_TEXT, LeaderboardEntry, build_leaderboard, format_value, header_name
 from lwbench.metric import MetricId
 from lwbench.rd import curves_from_entries
 from lwbench.registry import Registry
@@ -213,7 +213,7 @@ def _table(entries: list[LeaderboardEntry], info: Mapping[str, MetricId]) -> str
             else:
                 std = e.value(c, "std")
                 tip = f' title="± {std:.4g}"' if std else ""
-                tds += f'<td data-v="{v!r}"{tip}>{v:.4g}</td>'
+                tds += f'<td data-v="{v!r}"{tip}>{format_value(v)}</td>'
         flags = ", ".join(FLAG_TEXT.get(f, f) for f in e.flags)
         rows.append(f'<tr class="{"flagged" if e.flags else ""}">{tds}<td>{html.escape(flags)}</td></tr>')
     return f'<table id="board"><thead><tr>{head}</tr></thead><tbody>{"".join(rows)}</tbody></table>'
