@@ -78,18 +78,30 @@ def rd_figures(entries: list[LeaderboardEntry], info: Mapping[str, MetricId], ou
             continue
         datasets = sorted({ds for ds, _ in curves})
         for ds in datasets:
-            fig, ax = plt.subplots(figsize=(6.0, 4.0))
+            fig, ax = plt.subplots(figsize=(7.0, 4.0))
+            # Distances span decades: a log axis, on which an exact (0) point cannot stand.
+            log_y = info[distortion].better == "lower" and info[distortion].unit == "m"
+            dropped = []
             for (d, codec), c in sorted(curves.items()):
                 if d != ds:
                     continue
-                ax.plot(c.rates, c.distortions, marker="o", ms=4, lw=1.4, label=codec)
+                r, v = c.rates, c.distortions
+                if log_y:
+                    if (v <= 0).any():
+                        dropped.append(codec)
+                    r, v = r[v > 0], v[v > 0]
+                if len(v):
+                    ax.plot(r, v, marker="o", ms=4, lw=1.4, label=codec)
             ax.set_xscale("log")
-            if info[distortion].better == "lower" and all(v > 0 for c in curves.values() for v in c.distortions):
+            if log_y:
                 ax.set_yscale("log")
+                if dropped:
+                    ax.text(1.01, 0.0, f"exact (0), not drawn:\n{', '.join(dropped)}", transform=ax.transAxes,
+                            fontsize=7, color="#555", va="bottom")
             ax.set_xlabel("bytes per frame")
             ax.set_ylabel(header_name(distortion, info))
             ax.grid(True, which="both", alpha=0.3)
-            ax.legend(fontsize=8, ncol=2)
+            ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
             ax.set_title(f"{distortion} on {ds}", fontsize=9)
             name = f"rd_{distortion}" + ("" if len(datasets) == 1 else f"_{datasets.index(ds)}")
             figures.append(Figure(name, f"{distortion} against bytes ({ds})", _save(fig, out, name)))
