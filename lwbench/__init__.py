@@ -4,7 +4,7 @@ This module is the public API. Plugins (including the built-in ones under ``plug
 import only from here.
 """
 
-from lwbench.codec import BUDGET_PARAMS, Codec, CodecKind, RepresentationCodec, SelectionCodec
+from lwbench.codec import BUDGET_PARAMS, Codec, CodecKind, RepresentationCodec, SelectionCodec, top_k
 from lwbench.dataset import Dataset
 from lwbench.deps import import_open3d
 from lwbench.device import DEVICE_PARAM, resolve_device
@@ -74,6 +74,7 @@ __all__ = [
     "read_point_file",
     "register_sensor",
     "resolve_device",
+    "top_k",
     "unpack_points",
     "write_kitti_sequence",
     "__version__",

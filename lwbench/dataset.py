@@ -45,6 +45,13 @@ class Dataset(abc.ABC):
     def has_poses(self) -> bool:
         """Whether frames carry ground-truth poses (sequence metrics need them)."""
 
+    def traversals(self) -> list[list[int]]:
+        """Frame indices of each separate drive through the same place (default: one drive, every
+        frame). A dataset with two -- a mapping drive and a later tracking drive -- lets the
+        localization metric build its map from one and track the other, as a robot relocalizing
+        in a map made on another day does."""
+        return [list(range(len(self)))]
+
     def __getitem__(self, index: int) -> Frame:
         if not -len(self) <= index < len(self):
             raise IndexError(f"{self.name}: frame {index} out of range (0..{len(self) - 1})")

@@ -45,6 +45,15 @@ def _ground_truth(seq: SequenceEvaluation) -> tuple[np.ndarray, int]:
     return seq.cached("ground_truth", compute)
 
 
+def _drives(seq: SequenceEvaluation) -> tuple[list[int], list[int]] | None:
+    """Positions (in ``seq``) of the mapping drive and the tracking drive when the evaluated
+    frames span two of the dataset's traversals (at least two frames each), else ``None``."""
+    where = {f: k for k, f in enumerate(seq.frame_indices)}
+    drives = [[where[f] for f in t if f in where] for t in seq.dataset.traversals()]
+    drives = [d for d in drives if len(d) >= 2]
+    return (drives[0], drives[1]) if len(drives) >= 2 else None
+
+
 def _pose_ids(prefix: str, default: bool) -> tuple[MetricId, ...]:
     """The trajectory-error ids, shared by map tracking and odometry (``odom_`` prefix)."""
     return (
@@ -69,29 +78,43 @@ class LocalizationMetric(SequenceMetric):
         MetricId("map_share", "share", LOWER),
         MetricId("icp_failures_original", "frames", LOWER),
     )
-    version = "2"  # 2: icp_failures_original
+    version = "3"  # 2: icp_failures_original; 3: a mapping drive and a tracking drive when there are two
     description = (
         "Map of decoded scans at GT poses (voxel grid filter), each decoded scan tracked against it "
         "with point-to-plane ICP from the previous estimate; ATE/rotation/mAPE over tracked frames, "
-        "RPE rmse per frame, map size and its share of all original points; icp_failures_original: "
-        "the same tracking on the original scans (if they fail, no codec's localization means anything)."
+        "RPE rmse per frame, map size and its share of the mapped original points; with two drives "
+        "(dataset traversals) the map is the first drive's and the second is tracked; "
+        "icp_failures_original: the same on the original scans (if they fail, no codec's localization "
+        "means anything)."
     )
     settings = dict(ICP_PARAMS)
 
-    def _track(self, scans: list[np.ndarray], gt: np.ndarray):
-        world_map = build_map(scans, gt, self.settings)
-        return world_map, track_against_map(scans, gt[0], world_map, self.settings)
+    def _track(self, scans: list[np.ndarray], gt: np.ndarray, drives: tuple[list[int], list[int]] | None):
+        """(map, tracking, positions tracked): the map from the mapping drive (or every scan),
+        tracked: the tracking drive (or the same scans, each against the map without it)."""
+        if drives is None:
+            world_map = build_map(scans, gt, self.settings)
+            return world_map, track_against_map(scans, gt[0], world_map, self.settings), list(range(len(scans)))
+        mapping, tracking = drives
+        world_map = build_map([scans[i] for i in mapping], gt[mapping], self.settings)
+        # The map holds none of the tracked scans: nothing to leave out.
+        settings = {**self.settings, "leave_one_out": False}
+        track = track_against_map([scans[i] for i in tracking], gt[tracking][0], world_map, settings)
+        return world_map, track, tracking
 
     def compute(self, seq: SequenceEvaluation) -> dict[str, float | None]:
         gt, n_original = _ground_truth(seq)
-        world_map, tracking = self._track(seq.decoded, gt)
-        out = pose_metrics(gt, tracking)
+        drives = _drives(seq)
+        world_map, tracking, tracked = self._track(seq.decoded, gt, drives)
+        out = pose_metrics(gt[tracked], tracking)
         out["map_points"] = float(len(world_map))
+        if drives is not None:
+            n_original = sum(len(seq.original(i)) for i in drives[0])
         out["map_share"] = len(world_map) / n_original if n_original else None
 
         def original_failures() -> int:
             originals = [seq.original(i).points for i in range(len(seq.frame_indices))]
-            return int(self._track(originals, gt)[1].failed.sum())
+            return int(self._track(originals, gt, drives)[1].failed.sum())
 
         settings_key = json.dumps(self.settings, sort_keys=True, default=str)
         out["icp_failures_original"] = float(seq.cached(f"original_tracking:{settings_key}", original_failures))
@@ -104,6 +127,7 @@ class OdometryMetric(SequenceMetric):
     name = "odometry"
     order = 55
     ids = _pose_ids("odom_", default=False)
+    version = "2"  # 2: with two drives, the tracking drive only (no jump between drives)
     description = (
         "Decoded scans registered to the previous decoded scan (point-to-plane ICP, constant-velocity "
         "initial guess) and chained from the first GT pose: the drift of a receiver of the stream."
@@ -112,7 +136,10 @@ class OdometryMetric(SequenceMetric):
 
     def compute(self, seq: SequenceEvaluation) -> dict[str, float | None]:
         gt, _ = _ground_truth(seq)
-        return pose_metrics(gt, track_odometry(seq.decoded, gt[0], self.settings), prefix="odom_")
+        drives = _drives(seq)
+        tracked = drives[1] if drives is not None else list(range(len(seq.decoded)))  # one drive: no jump
+        scans = [seq.decoded[i] for i in tracked]
+        return pose_metrics(gt[tracked], track_odometry(scans, gt[tracked][0], self.settings), prefix="odom_")
 
 
 def _suffix(voxel: float, first: bool) -> str:

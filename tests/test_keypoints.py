@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from lwbench_plugins.keypoints import ISS, SIFT3D, Harris3D, KeypointError
-from lwbench_plugins.keypoints._base import MIN_POINTS, top_k, voxel_firsts
+from lwbench_plugins.keypoints._base import MIN_POINTS, voxel_firsts
 from lwbench_plugins.keypoints._geometry import eigvals_sym6, eigvec_sym6, hybrid_neighbourhood
 from lwbench_plugins.keypoints.iss import iss_response
 from scipy.spatial import cKDTree
 
-from lwbench import Frame, LwbenchError, get_sensor
+from lwbench import Frame, LwbenchError, get_sensor, top_k
 
 SELECTORS = (Harris3D, ISS, SIFT3D)
 KITTI = "kitti00_frames0-1/000000.bin"

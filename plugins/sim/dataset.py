@@ -23,19 +23,24 @@ from .scenes import SCENES, Scene
 
 # Bump whenever a change alters generated scans: it is part of the cache key and of identity(),
 # so results computed on an older simulator are never mistaken for results on the new one.
-SIM_VERSION = "5"
+SIM_VERSION = "6"  # 6: traversals (another day's parked cars), cars drawn from the day's generator
+
+# A second drive along the same path is offset sideways (a car never repeats its lane position
+# to the centimetre) and starts half a scan later, so its scans are not taken where the
+# mapping drive's were.
+TRAVERSAL_LATERAL = (0.0, 0.35, -0.25, 0.5)
 
 
-@functools.lru_cache(maxsize=4)
-def _world(scene: str, seed: int, pid: int) -> tuple[Scene, Raycaster]:
-    """Build (once per process) a scene and its ray-casting structure.
+@functools.lru_cache(maxsize=8)
+def _world(scene: str, seed: int, day: int, pid: int) -> tuple[Scene, Raycaster]:
+    """Build (once per process) a scene as it is on ``day`` and its ray-casting structure.
 
     ``pid`` is part of the key so that a forked worker builds its own Embree scene instead of
     using a parent's, whose thread pool did not survive the fork.
     """
     del pid
     rng = np.random.default_rng([seed, _SCENE_CODES[scene]])
-    world = SCENES[scene](rng)
+    world = SCENES[scene](rng, day=np.random.default_rng([seed, _SCENE_CODES[scene], 1000 + day]))
     return world, Raycaster(world.mesh)
 
 
@@ -79,6 +84,9 @@ class SimDataset(Dataset):
         Param("start", "float", None, "metres along the path to start at (default: the scene's; "
               "tunnel 0 = 6 m outside the portal)", low=0.0),
         Param("distortion", "bool", False, "motion distortion: each column cast from its own pose"),
+        Param("traversals", "int", 1, "drives along the path: 2 = a mapping drive then a tracking drive on another "
+              "day (other parked cars, noise and dropouts; 0.35 m further left, half a scan later); frames is per "
+              "drive", low=1, high=len(TRAVERSAL_LATERAL)),
         Param("cache", "bool", True, "keep generated scans on disk (KITTI layout, LWBENCH_CACHE)"),
     )
 
@@ -87,7 +95,8 @@ class SimDataset(Dataset):
         cfg = self.config
         if cfg["scene"] not in SCENES:
             raise ParameterError(f"sim: scene {cfg['scene']!r} is not available; have {sorted(SCENES)}")
-        self.world, self._caster = _world(cfg["scene"], cfg["seed"], os.getpid())
+        self._worlds = [_world(cfg["scene"], cfg["seed"], day, os.getpid()) for day in range(cfg["traversals"])]
+        self.world, self._caster = self._worlds[0]
         self.sensor = _resolve_sensor(cfg["sensor"], self.world)
         self._blocked = ego_mask(self._caster.sensor_rays(self.sensor)[0], self.world.ego_boxes)
         self.speed = cfg["speed"] or self.world.speed
@@ -106,17 +115,33 @@ class SimDataset(Dataset):
                 f"sim: {cfg['scene']} at {self.speed:g} m/s and {self.sensor.rate_hz:g} Hz has room for "
                 f"{available} frames from {s0:g} m along the path, asked for {n}"
             )
-        self._n = n
-        self._s = s0 + self.step * np.arange(n)
-        self.poses = self.world.path.poses(self._s, self.world.sensor_height, self.world.follow_pitch)
-        self.timestamps = np.arange(n) / self.sensor.rate_hz
+        if cfg["traversals"] > 1 and n + 0.5 > available:
+            raise ParameterError(
+                f"sim: a second drive starts half a scan later; ask for at most {available - 1} frames"
+            )
+        self._per = n
+        self._n = n * cfg["traversals"]
+        self._s = np.concatenate([s0 + self.step * (np.arange(n) + 0.5 * t) for t in range(cfg["traversals"])])
+        self._lateral = np.repeat(np.asarray(TRAVERSAL_LATERAL[: cfg["traversals"]]), n)
+        self.poses = self._poses_at(self._s, self._lateral)
+        self.timestamps = np.arange(self._n) / self.sensor.rate_hz
         self._cache = None
         if cfg["cache"]:
             self._cache = ScanCache.open(self._cache_key(), self.poses, self.timestamps, self.sensor)
 
+    def _poses_at(self, s: np.ndarray, lateral: np.ndarray) -> np.ndarray:
+        poses = self.world.path.poses(s, self.world.sensor_height, self.world.follow_pitch)
+        poses[:, :3, 3] += lateral[:, None] * self.world.path.lateral(s)
+        return poses
+
     # -- Dataset API ------------------------------------------------------------------------
     def __len__(self) -> int:
         return self._n
+
+    def traversals(self) -> list[list[int]]:
+        """Frame indices of each drive: with ``traversals=2``, the mapping drive then the
+        tracking drive (what the localization metric builds its map from and tracks)."""
+        return [list(range(t * self._per, (t + 1) * self._per)) for t in range(self.config["traversals"])]
 
     @property
     def has_poses(self) -> bool:
@@ -139,12 +164,13 @@ class SimDataset(Dataset):
         """Ray-cast frame ``index`` (no cache): the reference the cache must reproduce."""
         cfg = self.config
         rng = np.random.default_rng([cfg["seed"], index])
+        caster = self._worlds[index // self._per][1]
         column_poses = None
         if cfg["distortion"]:
             cols = np.arange(self.sensor.n_azimuth) / self.sensor.n_azimuth
             s = self._s[index] + self.step * cols
-            column_poses = self.world.path.poses(s, self.world.sensor_height, self.world.follow_pitch)
-        return self._caster.scan(
+            column_poses = self._poses_at(s, np.full(len(s), self._lateral[index]))
+        return caster.scan(
             self.sensor, self.poses[index], rng, noise=cfg["noise"], dropout=cfg["dropout"],
             column_poses=column_poses, blocked=self._blocked,
         )

@@ -34,7 +34,7 @@ def _split(rng: np.random.Generator, lo: float, hi: float) -> np.ndarray:
     return np.array(cuts)
 
 
-def build_indoor(rng: np.random.Generator) -> Scene:
+def build_indoor(rng: np.random.Generator, day: np.random.Generator | None = None) -> Scene:
     b = MeshBuilder()
     x_end, bx0, bx1, y_end = 36.0, 30.0, 30.0 + 2 * HALF, 20.0
     depth = 6.4

@@ -10,8 +10,6 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-import numpy as np
-
 from .base import Scene
 from .indoor import build_indoor
 from .tunnel import build_tunnel
@@ -19,7 +17,9 @@ from .urban import build_urban
 
 __all__ = ["SCENES", "Scene"]
 
-SCENES: dict[str, Callable[[np.random.Generator], Scene]] = {
+# Each builder takes the scene's generator and, as ``day``, a generator for what changes between
+# two drives through the same place (only the street has such things: its parked cars).
+SCENES: dict[str, Callable[..., Scene]] = {
     "tunnel": build_tunnel,
     "urban": build_urban,
     "indoor": build_indoor,

@@ -36,7 +36,9 @@ def _tunnel_profile(width: np.ndarray, height: np.ndarray, n_floor: int = 7, n_w
     return profile, is_floor
 
 
-def build_tunnel(rng: np.random.Generator, length: float = 135.0, approach: float = 6.0) -> Scene:
+def build_tunnel(
+    rng: np.random.Generator, length: float = 135.0, approach: float = 6.0, day: np.random.Generator | None = None
+) -> Scene:
     """A winding mine drift entered from outside through a portal in a rock face.
 
     The path starts ``approach`` metres in front of the portal on open ground (few returns,

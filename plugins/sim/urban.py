@@ -50,7 +50,10 @@ CURB_H = 0.15
 LANE = -1.75  # the car drives in the right-hand lane (lateral axis points left)
 
 
-def build_urban(rng: np.random.Generator, drive: float = 200.0) -> Scene:
+def build_urban(rng: np.random.Generator, drive: float = 200.0, day: np.random.Generator | None = None) -> Scene:
+    """The street; ``day`` draws what changes between two drives along it (which parking slots
+    are taken, and by what): the static city comes from ``rng`` alone."""
+    day = day if day is not None else np.random.default_rng(rng.integers(2**63))
     lead_in = 60.0  # street behind the start, so the first scans see buildings behind the car
     first = rng.uniform(110.0, 130.0)
     turn = rng.choice([-1.0, 1.0])
@@ -78,7 +81,7 @@ def build_urban(rng: np.random.Generator, drive: float = 200.0) -> Scene:
         _buildings(b, rng, centre, tree, side)
         poles = _poles(b, rng, centre, side)
         _trees(b, rng, centre, tree, side, poles)
-        _parked_cars(b, rng, centre, side)
+        _parked_cars(b, day, centre, side)
 
     _backdrop(b, rng, centre, tree)
     lane = centre.points + LANE * centre.lateral(centre.s)
