@@ -523,6 +523,20 @@ def simulate(
     console.print(f"wrote {len(scans)} scans of {scene!r} to {out} (run: lwbench run --dataset {out})")
 
 
+def _plugin_commands() -> None:
+    """Commands that plugins add (hook ``lwbench_register_commands``); a plugin whose hook
+    raises is reported like any plugin that fails to load, and the others still work."""
+    reg = get_registry()
+    for impl in reg.pm.hook.lwbench_register_commands.get_hookimpls():
+        try:
+            impl.function(cli=app)
+        except Exception as exc:  # noqa: BLE001 - one plugin's bug must not take the CLI down
+            reg._fail(impl.plugin_name, "lwbench_register_commands", exc)
+
+
+_plugin_commands()
+
+
 def main() -> None:
     """The ``lwbench`` executable: any lwbench error that escapes a command (a missing library,
     a bad input found late) is one line on stderr and exit status 2, never a traceback."""

@@ -57,6 +57,10 @@ class Codec(abc.ABC):
     # Whether ``lwbench run`` with no --codec includes this codec: true for codecs whose defaults
     # encode a scan in well under a second on a laptop CPU, so the main job stays about a minute.
     in_default_run: ClassVar[bool] = False
+    # What the codec needs beyond a scan, when it cannot run on any scan at its defaults (the
+    # oracle selector needs labels written for the sequence): conformance checks skip it and say
+    # why. Empty for every ordinary codec.
+    needs: ClassVar[str] = ""
 
     def __init__(self, **params: Any) -> None:
         self.config: dict[str, Any] = resolve_params(self.name, self.all_params(), params)
@@ -75,6 +79,7 @@ class Codec(abc.ABC):
             "description": cls.description,
             "supports_gpu": cls.supports_gpu,
             "in_default_run": cls.in_default_run,
+            "needs": cls.needs,
             "params": [p.describe() for p in cls.all_params()],
         }
 

@@ -45,3 +45,13 @@ def lwbench_metrics() -> list[type[FrameMetric] | type[SequenceMetric]]:
     :return: ``FrameMetric`` or ``SequenceMetric`` subclasses; their ``ids`` must not clash
         with another metric's.
     """
+
+
+@hookspec
+def lwbench_register_commands(cli) -> None:
+    """Add command-line commands to ``lwbench`` (as datasette's ``register_commands``).
+
+    :param cli: the ``typer.Typer`` application; a plugin adds ``@cli.command()`` functions, or
+        a sub-application with ``cli.add_typer``. Keep the imports inside the command bodies:
+        every plugin's commands are registered whenever ``lwbench`` starts.
+    """

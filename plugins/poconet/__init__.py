@@ -1,0 +1,32 @@
+"""``poconet`` and ``oracle``: PocoNet (Cui et al.), the learned localization-oriented selector,
+and the true observation-count labels it learns from.
+
+- :mod:`.labels` -- §III-B: observation counts over a sequence, RANSAC ground, Algorithm 1
+  (``lwbench label DATASET --out DIR``);
+- :mod:`.network` / :mod:`.data` -- §III-C: RandLA-Net backbone, Global Feature Attention,
+  siamese encoder, in plain PyTorch with SciPy k-d trees in the data pipeline;
+- :mod:`.train` -- ``lwbench train poconet`` (CPU or CUDA, resumable);
+- :mod:`.codec` -- the two selection codecs; the shipped weights are ``weights/``.
+
+Heavy imports (torch, SciPy, Open3D) happen inside the functions that use them.
+"""
+
+from __future__ import annotations
+
+from lwbench import hookimpl
+
+from .codec import OracleSelector, PocoNetSelector
+
+__all__ = ["PocoNetSelector", "OracleSelector"]
+
+
+@hookimpl
+def lwbench_codecs():
+    return [PocoNetSelector, OracleSelector]
+
+
+@hookimpl
+def lwbench_register_commands(cli) -> None:
+    from .commands import register
+
+    register(cli)

@@ -1,0 +1,156 @@
+"""The ``poconet`` selection codec (the learned selector) and ``oracle`` (the true labels).
+
+Both rank every point by priority class -- high priority first, then ground, then the rest --
+and keep exactly the budget (``ratio`` / ``points``, like every selector) with
+:func:`lwbench.top_k`; within a class by the class's probability (``poconet``) or the
+observation count (``oracle``); ties by index, so selection is deterministic.
+
+``poconet`` runs the network on at most ``points_in`` points of the scan (a seeded random
+sample, RandLA-Net's own sampling) and carries each prediction to the other points by nearest
+neighbour, as RandLA-Net does at test time: the first layer's 16-neighbour encoding is the cost,
+and a 120k-point KITTI scan holds ~4x the points its geometry needs for a priority class.
+
+``oracle`` reads labels written by ``lwbench label`` (``oracle.labels=DIR``): what the network
+learns toward, computed with the whole sequence and its ground truth -- an upper bound no
+single-scan method can reach, and a row no paper shows.
+"""
+
+from __future__ import annotations
+
+import functools
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lwbench import (
+    BUDGET_PARAMS,
+    DEVICE_PARAM,
+    DataFormatError,
+    Frame,
+    Param,
+    ParameterError,
+    SelectionCodec,
+    resolve_device,
+    top_k,
+)
+
+from .labels import GROUND, HIGH, LabelStore
+
+__all__ = ["PocoNetSelector", "OracleSelector", "load_checkpoint", "SHIPPED_WEIGHTS", "CHECKPOINT_FORMAT"]
+
+SHIPPED_WEIGHTS = Path(__file__).with_name("weights") / "poconet_sim_urban.pt"
+CHECKPOINT_FORMAT = "lwbench-poconet"
+
+
+def _rank(cls: np.ndarray, high: np.ndarray, ground: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(tier, score) for top_k: high priority (by its score), ground (by its), the rest (by
+    the high-priority score)."""
+    tier = np.where(cls == HIGH, 0, np.where(cls == GROUND, 1, 2))
+    score = np.where(cls == GROUND, ground, high)
+    return tier, score
+
+
+@functools.lru_cache(maxsize=4)
+def load_checkpoint(path: str, device: str):
+    """The network of a PocoNet checkpoint (``torch.load(weights_only=True)``: no code runs)."""
+    import torch
+
+    from .network import NetConfig, PocoNet
+
+    p = Path(path)
+    if not p.is_file():
+        raise DataFormatError(f"poconet: no checkpoint at {p}")
+    try:
+        ckpt = torch.load(p, map_location=device, weights_only=True)
+    except Exception as exc:  # noqa: BLE001 - torch raises many types for a bad file
+        raise DataFormatError(f"poconet: {p} is not a readable checkpoint ({type(exc).__name__}: {exc})") from None
+    if not isinstance(ckpt, dict) or ckpt.get("format") != CHECKPOINT_FORMAT:
+        raise DataFormatError(f"poconet: {p} is not a PocoNet checkpoint (format {CHECKPOINT_FORMAT!r} expected)")
+    try:
+        cfg = ckpt["config"]
+        net = PocoNet(NetConfig(**{**cfg, "d_out": tuple(cfg["d_out"])}))
+        net.load_state_dict(ckpt["model"])
+    except (KeyError, TypeError, RuntimeError) as exc:
+        raise DataFormatError(f"poconet: {p} does not match the network ({exc})") from None
+    net.to(device).eval()
+    return net, ckpt.get("meta", {})
+
+
+class PocoNetSelector(SelectionCodec):
+    """The points PocoNet predicts matter for localization (Cui et al., §III)."""
+
+    name = "poconet"
+    version = "1"
+    description = "learned priority classes (RandLA-Net + GFA); keeps high priority, then ground"
+    supports_gpu = True
+    params = (
+        *BUDGET_PARAMS,
+        Param("weights", "str", "shipped", "checkpoint: 'shipped' (trained on sim urban) or a path"),
+        Param("points_in", "int", 32768, "the network sees at most this many points of a scan", low=256),
+        Param("seed", "int", 0, "seed of the input sample and the network's random sub-sampling", low=0),
+        DEVICE_PARAM,
+    )
+
+    def _weights(self) -> str:
+        w = self.config["weights"]
+        return str(SHIPPED_WEIGHTS if w == "shipped" else Path(w).expanduser())
+
+    def probabilities(self, frame: Frame) -> np.ndarray:
+        """``(N, 3)`` class probabilities of every point of the scan."""
+        import torch
+        from scipy.spatial import cKDTree
+
+        from .data import features, prepare, to_torch
+
+        device = resolve_device(self.config["device"])
+        net, _ = load_checkpoint(self._weights(), str(device))
+        cfg = net.config
+        n = len(frame)
+        rng = np.random.default_rng([self.config["seed"], frame.index])
+        cap = self.config["points_in"]
+        pick = np.sort(rng.choice(n, cap, replace=False)) if n > cap else np.arange(n)
+        pts = frame.points[pick]
+        feats = features(frame)[pick]
+        pyramid = prepare(pts, cfg.k, cfg.ratio, len(cfg.d_out), rng)
+        with torch.no_grad():
+            logits, _ = net(to_torch([pyramid], [feats], device))
+        probs = torch.softmax(logits[0], dim=-1).double().cpu().numpy()
+        if len(pick) == n:
+            return probs
+        dist, nearest = cKDTree(pts).query(frame.points, k=1, workers=-1)
+        out = probs[nearest]
+        # Ties within one sampled point's neighbourhood go to the points closest to it.
+        out -= 1e-9 * dist[:, None]
+        return out
+
+    def select(self, frame: Frame) -> np.ndarray:
+        k = self.budget(len(frame))
+        if k == 0 or len(frame) == 0:
+            return np.empty(0, dtype=np.int64)
+        probs = self.probabilities(frame)
+        tier, score = _rank(probs.argmax(axis=1), probs[:, HIGH], probs[:, GROUND])
+        return top_k(tier, score, k)
+
+
+class OracleSelector(SelectionCodec):
+    """The true observation-count labels: high priority by count, then ground, then the rest."""
+
+    name = "oracle"
+    version = "1"
+    description = "selects by the true PocoNet labels of the sequence (lwbench label): the upper bound"
+    needs = "labels written for the sequence by `lwbench label` (oracle.labels=DIR)"
+    params = (*BUDGET_PARAMS, Param("labels", "str", None, "folder written by `lwbench label`"))
+
+    def __init__(self, **params: Any) -> None:
+        super().__init__(**params)
+        self._store = LabelStore(self.config["labels"]) if self.config["labels"] else None
+
+    def select(self, frame: Frame) -> np.ndarray:
+        if self._store is None:
+            raise ParameterError("oracle: set oracle.labels=DIR (labels written by `lwbench label DATASET --out DIR`)")
+        k = self.budget(len(frame))
+        labels, counts = self._store.read(frame.index, len(frame))
+        c = counts.astype(np.float64)
+        tier, score = _rank(labels, c, c)
+        return top_k(tier, score, k)
