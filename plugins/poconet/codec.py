@@ -2,8 +2,11 @@
 
 Both rank every point by priority class -- high priority first, then ground, then the rest --
 and keep exactly the budget (``ratio`` / ``points``, like every selector) with
-:func:`lwbench.top_k`; within a class by the class's probability (``poconet``) or the
-observation count (``oracle``); ties by index, so selection is deterministic.
+:func:`lwbench.top_k`. Within a class the order is a seeded random one (the class is the
+label; a class's points are equal): ordering by the network's probability instead keeps one
+patch, because the probability is smooth in space -- measured on the KITTI frame, an early
+checkpoint's top 10,389 high-priority points all lay in one 15 m sector, where a random order
+spreads them over every part of the scan the network marks. Deterministic for a seed.
 
 ``poconet`` runs the network on at most ``points_in`` points of the scan (a seeded random
 sample, RandLA-Net's own sampling) and carries each prediction to the other points by nearest
@@ -43,12 +46,12 @@ SHIPPED_WEIGHTS = Path(__file__).with_name("weights") / "poconet_sim_urban.pt"
 CHECKPOINT_FORMAT = "lwbench-poconet"
 
 
-def _rank(cls: np.ndarray, high: np.ndarray, ground: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(tier, score) for top_k: high priority (by its score), ground (by its), the rest (by
-    the high-priority score)."""
+def select_by_class(cls: np.ndarray, k: int, seed: int, index: int) -> np.ndarray:
+    """The budget by class: high priority, then ground, then the rest; a seeded random order
+    within the class where the budget runs out."""
     tier = np.where(cls == HIGH, 0, np.where(cls == GROUND, 1, 2))
-    score = np.where(cls == GROUND, ground, high)
-    return tier, score
+    score = np.random.default_rng([seed, index, 1]).random(len(cls))
+    return top_k(tier, score, k)
 
 
 @functools.lru_cache(maxsize=4)
@@ -77,6 +80,12 @@ def load_checkpoint(path: str, device: str):
     return net, ckpt.get("meta", {})
 
 
+def trained_points_in(meta: dict) -> int:
+    """The sample size a checkpoint was trained with: the neighbourhoods the network learned
+    are those of that density, so inference samples a scan to the same count."""
+    return int(meta.get("train", {}).get("points_in", 16384))
+
+
 class PocoNetSelector(SelectionCodec):
     """The points PocoNet predicts matter for localization (Cui et al., §III)."""
 
@@ -87,8 +96,10 @@ class PocoNetSelector(SelectionCodec):
     params = (
         *BUDGET_PARAMS,
         Param("weights", "str", "shipped", "checkpoint: 'shipped' (trained on sim urban) or a path"),
-        Param("points_in", "int", 32768, "the network sees at most this many points of a scan", low=256),
-        Param("seed", "int", 0, "seed of the input sample and the network's random sub-sampling", low=0),
+        Param("points_in", "int", None, "the network sees at most this many points of a scan "
+              "(default: the density it was trained at)", low=256),
+        Param("seed", "int", 0, "seed of the input sample, the network's sub-sampling and the order within a class",
+              low=0),
         DEVICE_PARAM,
     )
 
@@ -104,11 +115,11 @@ class PocoNetSelector(SelectionCodec):
         from .data import features, prepare, to_torch
 
         device = resolve_device(self.config["device"])
-        net, _ = load_checkpoint(self._weights(), str(device))
+        net, meta = load_checkpoint(self._weights(), str(device))
         cfg = net.config
         n = len(frame)
         rng = np.random.default_rng([self.config["seed"], frame.index])
-        cap = self.config["points_in"]
+        cap = self.config["points_in"] or trained_points_in(meta)
         pick = np.sort(rng.choice(n, cap, replace=False)) if n > cap else np.arange(n)
         pts = frame.points[pick]
         feats = features(frame)[pick]
@@ -118,29 +129,28 @@ class PocoNetSelector(SelectionCodec):
         probs = torch.softmax(logits[0], dim=-1).double().cpu().numpy()
         if len(pick) == n:
             return probs
-        dist, nearest = cKDTree(pts).query(frame.points, k=1, workers=-1)
-        out = probs[nearest]
-        # Ties within one sampled point's neighbourhood go to the points closest to it.
-        out -= 1e-9 * dist[:, None]
-        return out
+        _, nearest = cKDTree(pts).query(frame.points, k=1, workers=-1)
+        return probs[nearest]
 
     def select(self, frame: Frame) -> np.ndarray:
         k = self.budget(len(frame))
         if k == 0 or len(frame) == 0:
             return np.empty(0, dtype=np.int64)
-        probs = self.probabilities(frame)
-        tier, score = _rank(probs.argmax(axis=1), probs[:, HIGH], probs[:, GROUND])
-        return top_k(tier, score, k)
+        return select_by_class(self.probabilities(frame).argmax(axis=1), k, self.config["seed"], frame.index)
 
 
 class OracleSelector(SelectionCodec):
-    """The true observation-count labels: high priority by count, then ground, then the rest."""
+    """The true labels of the sequence: high priority, then ground, then the rest."""
 
     name = "oracle"
     version = "1"
     description = "selects by the true PocoNet labels of the sequence (lwbench label): the upper bound"
     needs = "labels written for the sequence by `lwbench label` (oracle.labels=DIR)"
-    params = (*BUDGET_PARAMS, Param("labels", "str", None, "folder written by `lwbench label`"))
+    params = (
+        *BUDGET_PARAMS,
+        Param("labels", "str", None, "folder written by `lwbench label`"),
+        Param("seed", "int", 0, "seed of the order within a class", low=0),
+    )
 
     def __init__(self, **params: Any) -> None:
         super().__init__(**params)
@@ -150,7 +160,5 @@ class OracleSelector(SelectionCodec):
         if self._store is None:
             raise ParameterError("oracle: set oracle.labels=DIR (labels written by `lwbench label DATASET --out DIR`)")
         k = self.budget(len(frame))
-        labels, counts = self._store.read(frame.index, len(frame))
-        c = counts.astype(np.float64)
-        tier, score = _rank(labels, c, c)
-        return top_k(tier, score, k)
+        labels, _ = self._store.read(frame.index, len(frame))
+        return select_by_class(labels, k, self.config["seed"], frame.index)
