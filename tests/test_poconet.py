@@ -6,7 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from lwbench_plugins.poconet.codec import SHIPPED_WEIGHTS, OracleSelector, PocoNetSelector, load_checkpoint
+from lwbench_plugins.poconet.codec import (
+    SHIPPED_WEIGHTS,
+    OracleSelector,
+    PocoNetSelector,
+    load_checkpoint,
+    select_by_class,
+)
 from lwbench_plugins.poconet.data import crop, prepare, to_torch
 from lwbench_plugins.poconet.labels import (
     GROUND,
@@ -133,6 +139,23 @@ def test_a_crop_is_the_points_nearest_a_random_one():
 
 
 # -- checkpoints and selection --------------------------------------------------------------
+def test_selection_by_class_fills_the_budget_high_then_ground_with_a_ground_quota():
+    cls = np.array([HIGH] * 10 + [GROUND] * 10 + [LOW] * 10)[np.random.default_rng(0).permutation(30)]
+
+    def counts(idx, of=cls):
+        return [int((of[idx] == c).sum()) for c in (HIGH, GROUND, LOW)]
+
+    assert counts(select_by_class(cls, 8, 0, 0)) == [8, 0, 0]
+    assert counts(select_by_class(cls, 8, 0, 0, ground_share=0.25)) == [6, 2, 0]
+    assert counts(select_by_class(cls, 25, 0, 0, ground_share=0.25)) == [10, 10, 5]
+    no_ground = cls[cls != GROUND]
+    assert counts(select_by_class(no_ground, 8, 0, 0, ground_share=0.5), no_ground) == [8, 0, 0]  # none: high
+    a, b = select_by_class(cls, 5, 0, 0), select_by_class(cls, 5, 1, 0)
+    np.testing.assert_array_equal(a, select_by_class(cls, 5, 0, 0))  # deterministic for a seed
+    assert set(a.tolist()) != set(b.tolist())  # and the seed picks within the class
+
+
+
 def test_a_corrupt_or_foreign_checkpoint_is_a_clear_error(tmp_path):
     (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
     with pytest.raises(DataFormatError, match="not a readable checkpoint"):

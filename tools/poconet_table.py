@@ -60,6 +60,7 @@ def main() -> None:
     ap.add_argument("--scene", default=PROTOCOL["scene"])
     ap.add_argument("--sensor", default="auto")
     ap.add_argument("--selectors", nargs="+", default=list(SELECTORS), choices=SELECTORS)
+    ap.add_argument("--param", action="append", default=[], help="CODEC.KEY=VALUE passed to lwbench run")
     args = ap.parse_args()
     selectors = [s for s in SELECTORS if s in args.selectors]
     rows: dict[str, list[dict]] = {s: [] for s in selectors}
@@ -78,6 +79,8 @@ def main() -> None:
             run += ["--param", f"oracle.labels={labels}"]
         if "poconet" in selectors:
             run += ["--param", f"poconet.weights={args.weights}"]
+        for extra in args.param:
+            run += ["--param", extra]
         lwbench(*run)
         board = json.loads(lwbench("leaderboard", "--store", str(args.store), "--format", "json"))
         for entry in board:

@@ -1,8 +1,9 @@
 """The ``poconet`` selection codec (the learned selector) and ``oracle`` (the true labels).
 
 Both rank every point by priority class -- high priority first, then ground, then the rest --
-and keep exactly the budget (``ratio`` / ``points``, like every selector) with
-:func:`lwbench.top_k`. Within a class the order is a seeded random one (the class is the
+and keep exactly the budget (``ratio`` / ``points``, like every selector), optionally with a
+share of it kept for ground (``ground_share``: the paper keeps "most points marked as high
+priority and some ground points"). Within a class the order is a seeded random one (the class is the
 label; a class's points are equal): ordering by the network's probability instead keeps one
 patch, because the probability is smooth in space -- measured on the KITTI frame, an early
 checkpoint's top 10,389 high-priority points all lay in one 15 m sector, where a random order
@@ -35,23 +36,29 @@ from lwbench import (
     ParameterError,
     SelectionCodec,
     resolve_device,
-    top_k,
 )
 
-from .labels import GROUND, HIGH, LabelStore
+from .labels import GROUND, HIGH, LOW, LabelStore
 
 __all__ = ["PocoNetSelector", "OracleSelector", "load_checkpoint", "SHIPPED_WEIGHTS", "CHECKPOINT_FORMAT"]
 
+GROUND_SHARE = Param("ground_share", "float", 0.0, "share of the budget kept for ground points", low=0.0, high=1.0)
 SHIPPED_WEIGHTS = Path(__file__).with_name("weights") / "poconet_sim_urban.pt"
 CHECKPOINT_FORMAT = "lwbench-poconet"
 
 
-def select_by_class(cls: np.ndarray, k: int, seed: int, index: int) -> np.ndarray:
-    """The budget by class: high priority, then ground, then the rest; a seeded random order
-    within the class where the budget runs out."""
-    tier = np.where(cls == HIGH, 0, np.where(cls == GROUND, 1, 2))
-    score = np.random.default_rng([seed, index, 1]).random(len(cls))
-    return top_k(tier, score, k)
+def select_by_class(cls: np.ndarray, k: int, seed: int, index: int, ground_share: float = 0.0) -> np.ndarray:
+    """The budget by class: high priority, then ground, then the rest, with ``ground_share`` of
+    the budget kept for ground points ("most points marked as high priority and some ground
+    points", §III-A); a seeded random order within a class where its quota runs out."""
+    k = int(min(k, len(cls)))
+    order = np.random.default_rng([seed, index, 1]).permutation(len(cls))
+    high, ground, rest = (order[cls[order] == c] for c in (HIGH, GROUND, LOW))
+    reserved = min(len(ground), round(ground_share * k))
+    n_high = min(len(high), k - reserved)
+    n_ground = min(len(ground), k - n_high)
+    keep = np.concatenate([high[:n_high], ground[:n_ground], rest[: k - n_high - n_ground]])
+    return np.sort(keep).astype(np.int64)
 
 
 @functools.lru_cache(maxsize=4)
@@ -100,6 +107,7 @@ class PocoNetSelector(SelectionCodec):
               "(default: the density it was trained at)", low=256),
         Param("seed", "int", 0, "seed of the input sample, the network's sub-sampling and the order within a class",
               low=0),
+        GROUND_SHARE,
         DEVICE_PARAM,
     )
 
@@ -136,7 +144,8 @@ class PocoNetSelector(SelectionCodec):
         k = self.budget(len(frame))
         if k == 0 or len(frame) == 0:
             return np.empty(0, dtype=np.int64)
-        return select_by_class(self.probabilities(frame).argmax(axis=1), k, self.config["seed"], frame.index)
+        cls = self.probabilities(frame).argmax(axis=1)
+        return select_by_class(cls, k, self.config["seed"], frame.index, self.config["ground_share"])
 
 
 class OracleSelector(SelectionCodec):
@@ -150,6 +159,7 @@ class OracleSelector(SelectionCodec):
         *BUDGET_PARAMS,
         Param("labels", "str", None, "folder written by `lwbench label`"),
         Param("seed", "int", 0, "seed of the order within a class", low=0),
+        GROUND_SHARE,
     )
 
     def __init__(self, **params: Any) -> None:
@@ -161,4 +171,4 @@ class OracleSelector(SelectionCodec):
             raise ParameterError("oracle: set oracle.labels=DIR (labels written by `lwbench label DATASET --out DIR`)")
         k = self.budget(len(frame))
         labels, _ = self._store.read(frame.index, len(frame))
-        return select_by_class(labels, k, self.config["seed"], frame.index)
+        return select_by_class(labels, k, self.config["seed"], frame.index, self.config["ground_share"])

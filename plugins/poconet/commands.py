@@ -54,7 +54,9 @@ def register(cli: typer.Typer) -> None:
             "poconet-train"
         ),
         epochs: Annotated[int, typer.Option(min=1)] = 12,
-        frames: Annotated[int, typer.Option(help="Frames per training drive.", min=2)] = 40,
+        frames: Annotated[int, typer.Option(help="Scans per training drive (1 m apart).", min=2)] = 120,
+        margin: Annotated[int, typer.Option(help="Scans at each end of a drive that only count observations.",
+                                            min=0)] = 25,
         seeds: Annotated[str, typer.Option(help="Training sim seeds, comma-separated.")] = "10,11,12,13",
         crop: Annotated[int, typer.Option(help="Points per training crop.", min=256)] = 8192,
         budget_minutes: Annotated[float | None, typer.Option(help="Stop after this much training time.")] = None,
@@ -68,7 +70,7 @@ def register(cli: typer.Typer) -> None:
         from .train import TrainConfig, export, train
 
         cfg = TrainConfig(
-            out=str(out), epochs=epochs, frames=frames, crop=crop, device=device,
+            out=str(out), epochs=epochs, frames=frames, margin=margin, crop=crop, device=device,
             train_seeds=tuple(int(s) for s in seeds.split(",")),
             time_budget_s=None if budget_minutes is None else 60 * budget_minutes,
         )

@@ -1,8 +1,11 @@
 """Training PocoNet on simulated streets (``lwbench train poconet``), on the CPU or a GPU.
 
-- **Data**: ``sim`` urban drives (several seeds; the evaluation seeds are others), HDL-64E with
-  2 cm range noise and motion distortion (the localization protocol's settings), labelled by
-  :func:`~.labels.label_dataset` once and kept in ``OUT/labels/seed-N`` (resumable).
+- **Data**: ``sim`` urban drives of ``frames`` scans (several seeds; the evaluation seeds are
+  others), HDL-64E with 2 cm range noise and motion distortion (the localization protocol's
+  settings), labelled by :func:`~.labels.label_dataset` over the whole drive once and kept in
+  ``OUT/labels/seed-N`` (resumable). Training uses the drive's middle: ``margin`` scans at each
+  end only count observations (see :func:`_middle`; on 40-scan drives, all ends, high-priority
+  accuracy stayed at 1 % after five epochs).
 - **Samples**: each scan is sampled to ``points_in`` points (what the codec feeds the network),
   then a fixed-size crop of ``crop`` points around a random point (RandLA-Net's crops); two
   independent random samplings of the crop's hierarchy make the siamese pair.
@@ -12,8 +15,8 @@
 - **Heading augmentation**: each crop turned by a random yaw (and mirrored half the time), see
   :func:`augment_yaw`.
 - **Optimisation** (the paper's): Adam, learning rate ``1e-3`` decayed by 5 % after each epoch;
-  class-weighted cross-entropy (``1 / sqrt(frequency)``: the labels are imbalanced, ~1/12
-  high priority) plus ``lam`` times the codewords' L2 distance.
+  class-weighted cross-entropy (RandLA-Net's ``1 / (frequency + 0.02)``: the labels are
+  imbalanced, ~1/12 high priority) plus ``lam`` times the codewords' L2 distance.
 - **Checkpoints** after every epoch (``OUT/last.pt`` with the optimiser state, so a killed run
   resumes; ``OUT/epoch-NNN.pt``), and the learning curve in ``OUT/curve.jsonl``: loss, per-class
   accuracy and IoU on held-out scans. ``export`` writes the small weights-only file the codec
@@ -31,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lwbench import Dataset
+from lwbench import Dataset, ParameterError
 from lwbench.registry import get_registry
 
 from .codec import CHECKPOINT_FORMAT
@@ -50,7 +53,8 @@ class TrainConfig:
     out: str
     train_seeds: tuple[int, ...] = (10, 11, 12, 13)
     val_seeds: tuple[int, ...] = (20,)
-    frames: int = 40
+    frames: int = 120
+    margin: int = 25
     val_frames: int = 8
     epochs: int = 12
     crop: int = 8192
@@ -73,7 +77,8 @@ def _sim(seed: int, frames: int) -> Dataset:
 def _labelled(ds: Dataset, folder: Path) -> LabelStore:
     store = LabelStore(folder)
     try:
-        if store.meta()["dataset"] == ds.identity():
+        meta = store.meta()
+        if meta["dataset"] == ds.identity() and meta["settings"] == LabelSettings().__dict__:
             return store
     except Exception:  # noqa: BLE001 - not there yet, or stale: label again
         pass
@@ -90,7 +95,7 @@ def _class_weights(stores: list[tuple[Dataset, LabelStore]]) -> np.ndarray:
             lab, _ = store.read(i, meta["frames"][str(i)])
             counts += np.bincount(lab, minlength=len(CLASSES))
     freq = counts / counts.sum()
-    w = 1.0 / np.sqrt(np.maximum(freq, 1e-6))
+    w = 1.0 / (freq + 0.02)  # RandLA-Net's weights; 1/sqrt(frequency) left high priority unlearned
     return w / w.mean()
 
 
@@ -136,12 +141,20 @@ def evaluate_scans(net, scans: list[tuple[np.ndarray, np.ndarray, np.ndarray]], 
     return out
 
 
+def _middle(cfg: TrainConfig) -> range:
+    """The frames a drive trains on: all but ``margin`` at each end, whose counts are cut short
+    by the drive's end (a point behind the first pose is seen by few poses because the
+    sequence stops, not because of what it is) -- no single scan can tell that."""
+    return range(cfg.margin, cfg.frames - cfg.margin)
+
+
 def _val_scans(cfg: TrainConfig, out: Path) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     scans = []
+    middle = _middle(cfg)
     for seed in cfg.val_seeds:
-        ds = _sim(seed, cfg.val_frames)
+        ds = _sim(seed, cfg.frames)
         store = _labelled(ds, out / "labels" / f"seed-{seed}")
-        for i in range(len(ds)):
+        for i in np.linspace(middle.start, middle.stop - 1, cfg.val_frames).round().astype(int):
             f = ds[i]
             lab, _ = store.read(i, len(f))
             pick = _sample(cfg.points_in, len(f), np.random.default_rng([cfg.seed, 7, seed, i]))
@@ -155,6 +168,8 @@ def train(cfg: TrainConfig, progress: Callable[[str, int, int], None] | None = N
 
     from lwbench import resolve_device
 
+    if len(_middle(cfg)) < 1:
+        raise ParameterError(f"train poconet: margin {cfg.margin} at each end leaves none of {cfg.frames} scans")
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
     device = resolve_device(cfg.device)
@@ -181,7 +196,7 @@ def train(cfg: TrainConfig, progress: Callable[[str, int, int], None] | None = N
         stores.append((ds, _labelled(ds, out / "labels" / f"seed-{seed}")))
     weights = torch.as_tensor(_class_weights(stores), dtype=torch.float32, device=device)
     val = _val_scans(cfg, out)
-    samples = [(d, s, i) for d, s in stores for i in range(len(d))]
+    samples = [(d, s, i) for d, s in stores for i in _middle(cfg)]
     t_start = time.perf_counter() - elapsed
     for epoch in range(start_epoch, cfg.epochs):
         rng = np.random.default_rng([cfg.seed, epoch])
