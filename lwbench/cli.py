@@ -668,6 +668,49 @@ def stream(
     console.print(f"wrote {escape(str(out / 'stream.json'))}")
 
 
+@app.command()
+def view(
+    source: Annotated[str, typer.Argument(help="The original: a scan file, dataset folder, ROS bag or dataset name.")],
+    decoded: Annotated[
+        Path | None, typer.Argument(help="A decoded cloud (.pcd/.ply), a payload or stream file. Else --codec.")
+    ] = None,
+    codec: Annotated[str | None, typer.Option(help="Encode and decode the frame with this codec (as a run).")] = None,
+    param: Annotated[list[str], typer.Option("--param", help="KEY=VALUE for the codec.")] = [],  # noqa: B006
+    dataset_param: Annotated[list[str], typer.Option("--dataset-param", help="KEY=VALUE for the dataset.")] = [],  # noqa: B006
+    frame: Annotated[int, typer.Option(help="Which frame of the source (and of a stream file).", min=0)] = 0,
+    png: Annotated[Path | None, typer.Option(help="Write this PNG instead of opening a window.")] = None,
+    max_error: Annotated[float | None, typer.Option(help="Top of the colour scale, m (default: p95).")] = None,
+    seed: Annotated[int, typer.Option(help="Seed, as lwbench run --seed.")] = 0,
+) -> None:
+    """Show an original scan beside its decoded cloud, coloured by error: Open3D's viewer where a
+    display exists, else (headless) a PNG."""
+    from lwbench.transcode import codec_config
+    from lwbench.view import has_display, pair_from_codec, pair_from_file, render_png, show_window
+
+    if (decoded is None) == (codec is None):
+        _fail("give a decoded file or --codec (one of them)")
+    reg = _registry()
+    try:
+        _, ds = _dataset(reg, source, dataset_param, seed)
+        if frame >= len(ds):
+            _fail(f"--frame {frame}: the source has {len(ds)} frame(s)")
+        original = ds[frame]
+        if decoded is not None:
+            if not decoded.exists():
+                _fail(f"{decoded} does not exist")
+            pair = pair_from_file(reg, original, decoded, frame if decoded.suffix != ".lwb" else 0)
+        else:
+            pair = pair_from_codec(reg, original, codec_config(reg, codec, param, seed))
+        if png is None and has_display():
+            show_window(pair, max_error)
+            return
+        path = render_png(pair, png or Path("lwbench-view.png"), max_error)
+    except LwbenchError as exc:
+        _fail(str(exc))
+    why = "" if png is not None else " (no display here)"
+    console.print(f"wrote {escape(str(path))}{why}: {escape(pair.title)}")
+
+
 def main() -> None:
     """The ``lwbench`` executable: any lwbench error that escapes a command (a missing library,
     a bad input found late) is one line on stderr and exit status 2, never a traceback."""
