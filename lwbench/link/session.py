@@ -88,6 +88,8 @@ class StreamRun:
     corrupted_sent: int
     events: dict[str, int] = field(default_factory=dict)
 
+    frames_sent: int = 0  # frames whose packets all went on the wire (delivered or not)
+
     def count(self, *status: str) -> int:
         return sum(o.status in status for o in self.outcomes)
 
@@ -115,7 +117,7 @@ class StreamRun:
             "latency_ms_p95": float(np.percentile(lat, 95) * 1e3) if len(lat) else None,
             "latency_parts_ms_median": parts,
             "map_iou": self.iou, "map_voxels": self.map_voxels, "reference_voxels": self.reference_voxels,
-            "base_starts": self.base_starts, "corrupted_sent": self.corrupted_sent,
+            "base_starts": self.base_starts, "corrupted_sent": self.corrupted_sent, "frames_sent": self.frames_sent,
             "dropped_why": {r: sum(o.reason == r for o in self.outcomes if o.status == "dropped")
                             for r in sorted({o.reason for o in self.outcomes if o.status == "dropped"})},
         }
@@ -347,4 +349,5 @@ def _collect(work: Path, codec: str, link: LinkModel, settings: StreamSettings, 
         codec, link, rate_hz, outcomes, wire_bytes, bins, bin_s, duration, iou,
         0 if keys is None else int(len(keys)), 0 if reference is None else int(len(reference)), base_starts,
         sum(1 for e in scout if e["ev"] in ("sent", "lost") and e.get("corrupted")), events,
+        sum(1 for e in scout if e["ev"] in ("sent", "lost")),
     )

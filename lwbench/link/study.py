@@ -91,14 +91,18 @@ def table_rows(runs: Sequence[StreamRun]) -> tuple[list[str], list[list[str]]]:
 
 
 def ratio_line(runs: Sequence[StreamRun], a: str = "raw", b: str = "vsgp") -> str | None:
-    """Raw/VSGP wire bytes at each cap where both ran (the paper: 840/8.7 ~ 1750/18.2 ~ 96)."""
+    """Raw/VSGP bytes on the wire at each cap where both ran (the paper: 840/8.7 ~ 1750/18.2 ~ 96):
+    per frame sent (the compression the link sees) and in total (which also counts the frames
+    each side did not get to send)."""
     out = []
     for link in dict.fromkeys(r.link for r in runs):
         x = next((r for r in runs if r.link == link and r.codec == a), None)
         y = next((r for r in runs if r.link == link and r.codec == b), None)
-        if x and y and y.wire_bytes:
-            out.append(f"{link.label}: {x.wire_bytes / y.wire_bytes:.1f}")
-    return f"{a}/{b} bytes on the wire: " + "; ".join(out) + " (VSGP paper, Fig. 6d: ~96)" if out else None
+        if x and y and y.wire_bytes and x.frames_sent and y.frames_sent:
+            per_frame = (x.wire_bytes / x.frames_sent) / (y.wire_bytes / y.frames_sent)
+            out.append(f"{link.label}: {per_frame:.1f} per frame sent, {x.wire_bytes / y.wire_bytes:.1f} in total "
+                       f"({a} sent {x.frames_sent}, {b} {y.frames_sent} of {len(y.outcomes)} frames)")
+    return f"{a}/{b} bytes on the wire -- " + "; ".join(out) + " (VSGP paper, Fig. 6d: ~96)" if out else None
 
 
 def fig6d(runs: Sequence[StreamRun], out: Path, name: str = "fig6d", title: str = "") -> list[Path]:
