@@ -468,8 +468,10 @@ def report(
 
 # ---------------------------------------------------------------------------------- inspect
 @app.command()
-def inspect(file: Annotated[Path, typer.Argument(help="A payload, scan file, dataset folder or store.")]) -> None:
-    """Say what a file holds: an lwbench payload, a scan, a dataset folder or a results store."""
+def inspect(file: Annotated[Path, typer.Argument(help="A payload, stream file, scan, dataset folder, bag or store.")]
+            ) -> None:
+    """Say what a file holds: an lwbench payload or stream file, a scan, a dataset folder, a ROS bag or a
+    results store."""
     from lwbench.inspection import describe
 
     if not file.exists():

@@ -97,6 +97,16 @@ class StreamRun:
     def kbps(self) -> float:
         return self.wire_bytes / KB / self.duration if self.duration > 0 else 0.0
 
+    def link_on_time(self) -> float | None:
+        """Of the frames the scout encoded, the share that crossed the link -- queue and transfer --
+        within one period: whether the link carries this codec at this cap, whatever the CPUs
+        at either end take to encode and decode (the latency's other parts)."""
+        encoded = [o for o in self.outcomes if o.payload_bytes is not None]
+        if not encoded:
+            return None
+        ok = [o for o in encoded if o.parts and o.parts["queue"] + o.parts["transfer"] <= 1.0 / self.rate_hz]
+        return len(ok) / len(encoded)
+
     def latencies(self) -> np.ndarray:
         return np.array([o.latency for o in self.outcomes if o.latency is not None])
 
@@ -113,6 +123,7 @@ class StreamRun:
             "on_time": self.count("on_time"), "late": self.count("late"), "dropped": self.count("dropped"),
             "lost": self.count("lost"), "rejected": self.count("rejected"), "failed": self.count("failed"),
             "on_time_share": self.count("on_time") / n if n else None,
+            "link_on_time_share": self.link_on_time(),
             "latency_ms_median": float(np.median(lat) * 1e3) if len(lat) else None,
             "latency_ms_p95": float(np.percentile(lat, 95) * 1e3) if len(lat) else None,
             "latency_parts_ms_median": parts,

@@ -14,12 +14,15 @@ from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+import numpy as np
+
 from lwbench.errors import ParameterError
 from lwbench.registry import Registry
 from lwbench.run.plan import CodecConfig, DatasetSpec
 
 from .session import StreamRun, StreamSettings, reference_map, run_stream
 from .shaper import KB, LinkModel
+from .wire import HEADER
 
 __all__ = ["PAPER_FIG6D", "StudyResult", "fig6d", "run_study", "table_rows"]
 
@@ -77,7 +80,7 @@ def run_study(
 def table_rows(runs: Sequence[StreamRun]) -> tuple[list[str], list[list[str]]]:
     """The per-codec table: what the issue asks each stream to report."""
     header = ["codec", "link", "KB/s", "total bytes", "on time", "late", "dropped", "lost", "rejected",
-              "latency ms (median / p95)", "map IoU"]
+              "latency ms (median / p95)", "link in a period", "map IoU"]
     rows = []
     for r in runs:
         s = r.summary()
@@ -85,6 +88,7 @@ def table_rows(runs: Sequence[StreamRun]) -> tuple[list[str], list[list[str]]]:
         rows.append([
             r.codec, r.link.label, f"{s['kbps']:,.1f}", f"{s['wire_bytes']:,}", f"{s['on_time']}/{s['frames']}",
             str(s["late"]), str(s["dropped"]), str(s["lost"]), str(s["rejected"]), lat,
+            "–" if s["link_on_time_share"] is None else f"{s['link_on_time_share']:.0%}",
             "–" if s["map_iou"] is None else f"{s['map_iou']:.3f}",
         ])
     return header, rows
@@ -92,15 +96,17 @@ def table_rows(runs: Sequence[StreamRun]) -> tuple[list[str], list[list[str]]]:
 
 def ratio_line(runs: Sequence[StreamRun], a: str = "raw", b: str = "vsgp") -> str | None:
     """Raw/VSGP bytes on the wire at each cap where both ran (the paper: 840/8.7 ~ 1750/18.2 ~ 96):
-    per frame sent (the compression the link sees) and in total (which also counts the frames
-    each side did not get to send)."""
+    per frame (payload and framing: the compression the link sees) and in total (which also
+    counts the frames each side did not get to send)."""
     out = []
     for link in dict.fromkeys(r.link for r in runs):
         x = next((r for r in runs if r.link == link and r.codec == a), None)
         y = next((r for r in runs if r.link == link and r.codec == b), None)
-        if x and y and y.wire_bytes and x.frames_sent and y.frames_sent:
-            per_frame = (x.wire_bytes / x.frames_sent) / (y.wire_bytes / y.frames_sent)
-            out.append(f"{link.label}: {per_frame:.1f} per frame sent, {x.wire_bytes / y.wire_bytes:.1f} in total "
+        xs, ys = x.summary() if x else None, y.summary() if y else None
+        if xs and ys and y.wire_bytes and xs["payload_bytes_mean"] and ys["payload_bytes_mean"]:
+            # a frame on the wire: its payload and the 25-byte framing header
+            per_frame = (xs["payload_bytes_mean"] + HEADER) / (ys["payload_bytes_mean"] + HEADER)
+            out.append(f"{link.label}: {per_frame:.1f} per frame, {x.wire_bytes / y.wire_bytes:.1f} in total "
                        f"({a} sent {x.frames_sent}, {b} {y.frames_sent} of {len(y.outcomes)} frames)")
     return f"{a}/{b} bytes on the wire -- " + "; ".join(out) + " (VSGP paper, Fig. 6d: ~96)" if out else None
 
@@ -119,11 +125,12 @@ def fig6d(runs: Sequence[StreamRun], out: Path, name: str = "fig6d", title: str 
         # per-second rate, as ifstat samples it
         per_s = max(1, int(round(1.0 / r.bin_s)))
         k = len(rate) // per_s * per_s
-        if k:
+        if k:  # each second's mean, held over that second
             sec = rate[:k].reshape(-1, per_s).mean(axis=1)
-            line, = ax_rate.step(t[per_s - 1 : k : per_s], sec, where="post", label=label)
+            x, y = np.arange(len(sec) + 1) * per_s * r.bin_s, np.append(sec, sec[-1])
         else:
-            line, = ax_rate.step(t, rate, where="post", label=label)
+            x, y = np.append(t - r.bin_s, t[-1]), np.append(rate, rate[-1])
+        line, = ax_rate.step(x, y, where="post", label=label)
         ax_acc.plot(t, acc / KB, color=line.get_color(), label=label)
     for ax, ylabel in ((ax_rate, "rate on the wire (KB/s)"), (ax_acc, "accumulated data (KB)")):
         ax.set_yscale("log")
