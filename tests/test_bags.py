@@ -268,3 +268,32 @@ def test_cloud_fields_are_found_by_name_in_a_padded_organized_ouster_layout():
     big = np.array([[1.5, 2.5, 3.5]], dtype=">f4")
     scan = cloud_arrays(_msg([("x", 0, 7), ("y", 4, 7), ("z", 8, 7)], 12, big.tobytes(), width=1, bigendian=True))
     assert scan.points.tolist() == [[1.5, 2.5, 3.5]]
+
+
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+def test_a_mangled_bag_raises_only_lwbench_errors(tmp_path, storage):
+    """Seeded flips and cuts in the storage file: refused with an lwbench error, or read -- never
+    another exception (reading stays read-only either way)."""
+    from lwbench import LwbenchError
+
+    write_bag(tmp_path / "bag", frames_to_clouds(_frames(2)), sensor=VLP16, storage=storage)
+    src = next((tmp_path / "bag").glob("*.mcap" if storage == "mcap" else "*.db3"))
+    data = src.read_bytes()
+    rng = np.random.default_rng(16)
+    for case in range(40):
+        blob = bytearray(data)
+        if case % 2:
+            blob = blob[: int(rng.integers(0, len(blob)))]
+        else:
+            for pos in rng.integers(0, len(blob), int(rng.integers(1, 6))):
+                blob[pos] ^= 1 << int(rng.integers(0, 8))
+        path = tmp_path / f"m{case}{src.suffix}"
+        path.write_bytes(bytes(blob))
+        try:
+            ds = BagDataset(path=str(path), sensor="vlp16")
+            for f in ds:
+                assert f.points.dtype == np.float32
+        except LwbenchError:
+            pass
+        finally:
+            path.unlink()

@@ -151,3 +151,32 @@ def test_cloud_writers_read_back_exactly(tmp_path, writer):
     pts = np.random.default_rng(0).normal(0, 5, (1000, 3)).astype(np.float32)
     path = writer(tmp_path / f"c.{writer.__name__[-3:]}", pts)
     assert np.array_equal(read_point_file(path).points, pts)
+
+
+def test_a_mangled_stream_file_raises_only_lwbench_errors(tmp_path, lab_folder):
+    """Seeded flips, cuts and splices anywhere in a stream file: each is refused with an
+    lwbench error (one line, exit 2 on the command line) or decodes -- never another exception."""
+    from lwbench import LwbenchError
+
+    assert invoke("encode", lab_folder, "--codec", "random", "--out", tmp_path, "--stream").exit_code == 0
+    data = (tmp_path / "random.lwbs").read_bytes()
+    rng = np.random.default_rng(15)
+    reg = get_registry()
+    for case in range(150):
+        blob = bytearray(data)
+        kind = case % 3
+        if kind == 0:
+            for pos in rng.integers(0, len(blob), int(rng.integers(1, 4))):
+                blob[pos] ^= 1 << int(rng.integers(0, 8))
+        elif kind == 1:
+            blob = blob[: int(rng.integers(0, len(blob)))]
+        else:
+            at = int(rng.integers(0, len(blob)))
+            blob[at:at] = rng.bytes(int(rng.integers(1, 64)))
+        path = tmp_path / f"m{case}.lwbs"
+        path.write_bytes(bytes(blob))
+        try:
+            decoded_frames(reg, open_payloads(path))
+        except LwbenchError:
+            pass
+        path.unlink()
