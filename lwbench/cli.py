@@ -618,7 +618,8 @@ def stream(
     threads: Annotated[int, typer.Option(help="torch/OpenMP threads per process.", min=1)] = 1,
     encode: Annotated[str, typer.Option(
         help="live: the scout encodes each scan as it is due; ahead: encoded and timed before the clock starts, "
-             "each payload ready its measured encode time after its turn (scout and base share no cores)")] = "live",
+             "each payload ready its measured encode time after its turn (the scout's encoding never overlaps "
+             "the base's decoding)")] = "live",
     voxel: Annotated[float, typer.Option(help="Occupancy voxel (m) of the base's map.")] = 0.2,
     seed: Annotated[int, typer.Option(help="Seed of codecs, dataset and link faults.")] = 0,
     out: Annotated[Path, typer.Option(help="Folder for stream.json and the Fig. 6d plots.")] = Path("lwbench-stream"),
