@@ -214,6 +214,8 @@ class Transmitter:
         self._writer.join(0.0 if self._abort else max(1.0, deadline - time.monotonic() + 1.0))
         self._abort = True
         self._writer.join(2.0)
+        if self._writer.is_alive():  # stuck in a write: the socket may hold half a packet
+            self.midframe = True
         if self.midframe or not self._connected():
             # A frame cut off halfway would swallow the END: say END on a fresh connection.
             self._drop_connection()
