@@ -259,6 +259,11 @@ def run_stream(
 
 
 def _run(dataset, codec, link, settings, rate_hz, reference, work: Path) -> StreamRun:
+    length = settings.frames / rate_hz
+    if settings.restart_at is not None and not 0 <= settings.restart_at < length:
+        raise ParameterError(
+            f"--restart-base-at must fall inside the stream (0 to {length:g} s), got {settings.restart_at}"
+        )
     port = _free_port()
     cfg = {
         "dataset": dataset, "codec": codec, "link": link.to_dict(), "frames": settings.frames,
