@@ -488,43 +488,6 @@ def inspect(file: Annotated[Path, typer.Argument(help="A payload, stream file, s
     console.print(table)
 
 
-# --------------------------------------------------------------------------------- simulate
-@app.command()
-def simulate(
-    scene: Annotated[str, typer.Argument(help="Scene: tunnel, urban or indoor.")],
-    out: Annotated[Path, typer.Option(help="Output folder (KITTI odometry layout).")],
-    frames: Annotated[int | None, typer.Option(help="Number of scans.", min=1)] = None,
-    seed: Annotated[int, typer.Option(help="Scene and noise seed.")] = 0,
-    sensor: Annotated[str | None, typer.Option(help="Sensor preset (default: the scene's).")] = None,
-) -> None:
-    """Write a simulated sequence to disk in KITTI layout (readable by lwbench and other tools).
-
-    The simulator is the default dataset (the installed dataset that declares ``is_default``)."""
-    from lwbench.io import write_kitti_sequence
-
-    reg = _registry()
-    try:
-        params: dict[str, object] = {"scene": scene, "seed": seed}
-        if frames is not None:
-            params["frames"] = frames
-        if sensor is not None:
-            params["sensor"] = sensor
-        from lwbench.run import resolve_dataset
-
-        spec = resolve_dataset(reg, None, params, seed)
-        ds = spec.build(reg)
-        with Progress(console=console, disable=not sys.stdout.isatty()) as progress:
-            task = progress.add_task(f"simulating {scene}", total=len(ds))
-            scans = []
-            for f in ds:
-                scans.append(f)
-                progress.advance(task)
-        write_kitti_sequence(scans, out)
-    except LwbenchError as exc:
-        _fail(str(exc))
-    console.print(f"wrote {len(scans)} scans of {scene!r} to {out} (run: lwbench run --dataset {out})")
-
-
 # ------------------------------------------------- encode / decode / view / stream (issue 15)
 def _dataset(reg: Registry, source: str, dataset_param: list[str], seed: int):
     """A dataset from a registered name or a path, as ``lwbench run --dataset`` resolves it."""
@@ -712,6 +675,43 @@ def view(
         _fail(str(exc))
     why = "" if png is not None else " (no display here)"
     console.print(f"wrote {escape(str(path))}{why}: {escape(pair.title)}")
+
+
+# --------------------------------------------------------------------------------- simulate
+@app.command()
+def simulate(
+    scene: Annotated[str, typer.Argument(help="Scene: tunnel, urban or indoor.")],
+    out: Annotated[Path, typer.Option(help="Output folder (KITTI odometry layout).")],
+    frames: Annotated[int | None, typer.Option(help="Number of scans.", min=1)] = None,
+    seed: Annotated[int, typer.Option(help="Scene and noise seed.")] = 0,
+    sensor: Annotated[str | None, typer.Option(help="Sensor preset (default: the scene's).")] = None,
+) -> None:
+    """Write a simulated sequence to disk in KITTI layout (readable by lwbench and other tools).
+
+    The simulator is the default dataset (the installed dataset that declares ``is_default``)."""
+    from lwbench.io import write_kitti_sequence
+
+    reg = _registry()
+    try:
+        params: dict[str, object] = {"scene": scene, "seed": seed}
+        if frames is not None:
+            params["frames"] = frames
+        if sensor is not None:
+            params["sensor"] = sensor
+        from lwbench.run import resolve_dataset
+
+        spec = resolve_dataset(reg, None, params, seed)
+        ds = spec.build(reg)
+        with Progress(console=console, disable=not sys.stdout.isatty()) as progress:
+            task = progress.add_task(f"simulating {scene}", total=len(ds))
+            scans = []
+            for f in ds:
+                scans.append(f)
+                progress.advance(task)
+        write_kitti_sequence(scans, out)
+    except LwbenchError as exc:
+        _fail(str(exc))
+    console.print(f"wrote {len(scans)} scans of {scene!r} to {out} (run: lwbench run --dataset {out})")
 
 
 def main() -> None:
