@@ -468,8 +468,10 @@ def report(
 
 # ---------------------------------------------------------------------------------- inspect
 @app.command()
-def inspect(file: Annotated[Path, typer.Argument(help="A payload, scan file, dataset folder or store.")]) -> None:
-    """Say what a file holds: an lwbench payload, a scan, a dataset folder or a results store."""
+def inspect(file: Annotated[Path, typer.Argument(help="A payload, stream file, scan, dataset folder, bag or store.")]
+            ) -> None:
+    """Say what a file holds: an lwbench payload or stream file, a scan, a dataset folder, a ROS bag or a
+    results store."""
     from lwbench.inspection import describe
 
     if not file.exists():
@@ -484,6 +486,195 @@ def inspect(file: Annotated[Path, typer.Argument(help="A payload, scan file, dat
     for k, v in info.items():
         table.add_row(k, v if isinstance(v, str) else json.dumps(v, default=str))
     console.print(table)
+
+
+# ------------------------------------------------- encode / decode / view / stream (issue 15)
+def _dataset(reg: Registry, source: str, dataset_param: list[str], seed: int):
+    """A dataset from a registered name or a path, as ``lwbench run --dataset`` resolves it."""
+    from lwbench.run import parse_assignments, resolve_dataset
+
+    spec = resolve_dataset(reg, source, parse_assignments(dataset_param, "--dataset-param"), seed)
+    return spec, spec.build(reg)
+
+
+@app.command()
+def encode(
+    source: Annotated[str, typer.Argument(help="A scan file, dataset folder, ROS bag or dataset name (sim).")],
+    codec: Annotated[str, typer.Option(help="Codec to encode with.")],
+    out: Annotated[Path, typer.Option(help="Output folder.")],
+    param: Annotated[list[str], typer.Option("--param", help="KEY=VALUE (or CODEC.KEY=VALUE) for the codec.")] = [],  # noqa: B006
+    dataset_param: Annotated[list[str], typer.Option("--dataset-param", help="KEY=VALUE for the dataset.")] = [],  # noqa: B006
+    frames: Annotated[int | None, typer.Option(help="Encode only the first N frames.", min=1)] = None,
+    seed: Annotated[int, typer.Option(help="Seed, as lwbench run --seed.")] = 0,
+    stream: Annotated[bool, typer.Option("--stream", help="One .lwbs stream file instead of one .lwb per frame.")]
+    = False,
+) -> None:
+    """Write payloads: one .lwb per frame plus stream.json (codec, parameters, sensor table, index), or
+    one .lwbs stream file; the bytes are what lwbench run measures and what crosses the link."""
+    from lwbench.transcode import codec_config, encode_dataset
+
+    reg = _registry()
+    try:
+        config = codec_config(reg, codec, param, seed)
+        spec, ds = _dataset(reg, source, dataset_param, seed)
+        with Progress(console=console, disable=not sys.stdout.isatty()) as progress:
+            task = progress.add_task(f"encoding with {config.label}", total=None)
+            summary = encode_dataset(reg, ds, config, out, stream=stream, frames=frames, source=spec.label,
+                                     on_frame=lambda done, n: progress.update(task, completed=done, total=n))
+    except LwbenchError as exc:
+        _fail(str(exc))
+    ratio = summary.raw_bytes / summary.payload_bytes if summary.payload_bytes else float("nan")
+    console.print(
+        f"wrote {summary.frames} frame(s), {summary.payload_bytes:,} bytes ({ratio:.1f}x smaller than float32 "
+        f"x,y,z) as a {summary.layout}: {escape(str(summary.path))}"
+    )
+
+
+@app.command()
+def decode(
+    file: Annotated[Path, typer.Argument(help="A .lwbs stream file, a .lwb payload or a folder of them.")],
+    out: Annotated[Path, typer.Option(help="Output folder (for --format bag: the new bag's folder).")],
+    format: Annotated[str, typer.Option("--format", help="pcd | ply | bag (ROS 2)")] = "pcd",
+    param: Annotated[list[str], typer.Option("--param", help="KEY=VALUE: decode-side codec setting.")] = [],  # noqa: B006
+    storage: Annotated[str, typer.Option(help="Bag storage: mcap or sqlite3 (.db3).")] = "mcap",
+) -> None:
+    """Decode payloads into clouds named after their source frames (NAME.CODEC.pcd, with sensor.json and
+    poses.txt beside them), or into a ROS 2 bag on the source's topics and stamps."""
+    from lwbench.streamfile import open_payloads
+    from lwbench.transcode import decode_payloads
+
+    if not file.exists():
+        _fail(f"{file} does not exist")
+    reg = _registry()
+    try:
+        summary = decode_payloads(reg, open_payloads(file), out, fmt=format, overrides=param, storage=storage)
+    except LwbenchError as exc:
+        _fail(str(exc))
+    where = summary.files[0] if format == "bag" else out
+    console.print(f"decoded {summary.frames} frame(s) of {summary.codec}, {summary.points:,} points -> "
+                  f"{escape(str(where))}")
+
+
+DEFAULT_STREAM_CODECS = ("raw", "gmm", "vsgp")  # the VSGP paper's Fig. 6d
+
+
+@app.command()
+def stream(
+    dataset: Annotated[str | None, typer.Option(help="Dataset name or path. Default: sim (the tunnel).")] = None,
+    dataset_param: Annotated[list[str], typer.Option("--dataset-param", help="KEY=VALUE for the dataset.")] = [],  # noqa: B006
+    codec: Annotated[list[str], typer.Option("--codec", help="Codec to stream (repeat). Default: raw, gmm, vsgp.")]
+    = [],  # noqa: B006
+    param: Annotated[list[str], typer.Option("--param", help="CODEC.KEY=VALUE[,VALUE...] for a codec.")] = [],  # noqa: B006
+    cap: Annotated[list[str], typer.Option("--cap", help="Link cap in KB/s (repeat; 'none' = no cap).")] = [],  # noqa: B006
+    frames: Annotated[int, typer.Option(help="Scans to stream (at the sensor's rate).", min=1)] = 40,
+    burst: Annotated[int | None, typer.Option(help="Token bucket size, bytes (default 100 ms of the cap).")] = None,
+    loss: Annotated[float, typer.Option(help="Probability that a packet is lost.")] = 0.0,
+    delay_ms: Annotated[float, typer.Option(help="One-way link delay, ms.")] = 0.0,
+    corrupt: Annotated[float, typer.Option(help="Probability that a frame has a bit flipped on the wire.")] = 0.0,
+    mtu: Annotated[int, typer.Option(help="Packet size, bytes.")] = 1400,
+    queue: Annotated[int, typer.Option(help="Frames the scout keeps waiting for the link (keep last N).", min=1)]
+    = 5,
+    drain: Annotated[float, typer.Option(help="Seconds the link may go on after the last scan.")] = 2.0,
+    restart_base_at: Annotated[
+        float | None, typer.Option(help="Kill the base this many seconds in and start a new one (fault).")
+    ] = None,
+    threads: Annotated[int, typer.Option(help="torch/OpenMP threads per process.", min=1)] = 1,
+    encode: Annotated[str, typer.Option(
+        help="live: the scout encodes each scan as it is due; ahead: encoded and timed before the clock starts, "
+             "each payload ready its measured encode time after its turn (the scout's encoding never overlaps "
+             "the base's decoding)")] = "live",
+    voxel: Annotated[float, typer.Option(help="Occupancy voxel (m) of the base's map.")] = 0.2,
+    seed: Annotated[int, typer.Option(help="Seed of codecs, dataset and link faults.")] = 0,
+    out: Annotated[Path, typer.Option(help="Folder for stream.json and the Fig. 6d plots.")] = Path("lwbench-stream"),
+) -> None:
+    """Stream a sequence from a scout process to a base process over 127.0.0.1 through a bandwidth cap:
+    per codec KB/s, bytes, frames on time / late / dropped, latency and the base's map IoU; Fig. 6d."""
+    from lwbench.link import LinkModel, StreamSettings, fig6d, parse_cap, ratio_line, run_study, table_rows
+    from lwbench.run import parse_assignments, parse_sweeps, resolve_dataset
+    from lwbench.run.plan import expand_codec_configs
+
+    reg = _registry()
+    try:
+        names = list(dict.fromkeys(codec)) or list(DEFAULT_STREAM_CODECS)
+        sweeps = parse_sweeps(param, names, "--param")
+        configs = [c for n in names for c in expand_codec_configs(reg.codec(n), sweeps.get(n, {}), seed)]
+        given = parse_assignments(dataset_param, "--dataset-param")
+        spec = resolve_dataset(reg, dataset, given, seed)
+        if any(p.name == "frames" for p in reg.dataset(spec.name).params) and "frames" not in given:
+            spec = type(spec)(spec.name, {**spec.params, "frames": frames})  # the simulator: as many as streamed
+        links = [LinkModel(parse_cap(c), burst, loss, delay_ms, corrupt, mtu, seed) for c in (cap or ["50"])]
+        settings = StreamSettings(frames=frames, queue=queue, drain_s=drain, threads=threads, voxel=voxel,
+                                  restart_at=restart_base_at, encode=encode)
+        console.print(f"[bold]lwbench stream[/]: {escape(spec.label)} · {frames} scans · "
+                      f"{len(configs)} codec(s) x {len(links)} link(s), one stream at a time")
+        result = run_study(
+            reg, spec, configs, links, settings,
+            on_start=lambda c, link: console.print(f"  streaming {escape(c.name)} through {escape(link.label)} ..."),
+        )
+    except LwbenchError as exc:
+        _fail(str(exc))
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "stream.json").write_text(result.to_json())
+    header, rows = table_rows(result.runs)
+    table = Table(title=f"Streams at {result.rate_hz:g} Hz (on time = decoded before the next scan is due)",
+                  title_justify="left")
+    for i, h in enumerate(header):
+        table.add_column(h, justify="left" if i < 2 else "right")
+    for r in rows:
+        table.add_row(*(escape(c) for c in r))
+    console.print(table)
+    line = ratio_line(result.runs)
+    if line:
+        console.print(escape(line))
+    for link in dict.fromkeys(r.link for r in result.runs):
+        name = "fig6d_" + ("uncapped" if link.rate_kbps is None else f"{link.rate_kbps:g}KBps")
+        runs = [r for r in result.runs if r.link == link]
+        paths = fig6d(runs, out, name, f"{result.dataset}: scout -> base, {link.label}")
+        console.print(f"wrote {escape(str(paths[0]))} (+ .svg)")
+    console.print(f"wrote {escape(str(out / 'stream.json'))}")
+
+
+@app.command()
+def view(
+    source: Annotated[str, typer.Argument(help="The original: a scan file, dataset folder, ROS bag or dataset name.")],
+    decoded: Annotated[
+        Path | None, typer.Argument(help="A decoded cloud (.pcd/.ply), a payload or stream file. Else --codec.")
+    ] = None,
+    codec: Annotated[str | None, typer.Option(help="Encode and decode the frame with this codec (as a run).")] = None,
+    param: Annotated[list[str], typer.Option("--param", help="KEY=VALUE for the codec.")] = [],  # noqa: B006
+    dataset_param: Annotated[list[str], typer.Option("--dataset-param", help="KEY=VALUE for the dataset.")] = [],  # noqa: B006
+    frame: Annotated[int, typer.Option(help="Which frame of the source (and of a stream file).", min=0)] = 0,
+    png: Annotated[Path | None, typer.Option(help="Write this PNG instead of opening a window.")] = None,
+    max_error: Annotated[float | None, typer.Option(help="Top of the colour scale, m (default: p95).")] = None,
+    seed: Annotated[int, typer.Option(help="Seed, as lwbench run --seed.")] = 0,
+) -> None:
+    """Show an original scan beside its decoded cloud, coloured by error: Open3D's viewer where a
+    display exists, else (headless) a PNG."""
+    from lwbench.transcode import codec_config
+    from lwbench.view import has_display, pair_from_codec, pair_from_file, render_png, show_window
+
+    if (decoded is None) == (codec is None):
+        _fail("give a decoded file or --codec (one of them)")
+    reg = _registry()
+    try:
+        _, ds = _dataset(reg, source, dataset_param, seed)
+        if frame >= len(ds):
+            _fail(f"--frame {frame}: the source has {len(ds)} frame(s)")
+        original = ds[frame]
+        if decoded is not None:
+            if not decoded.exists():
+                _fail(f"{decoded} does not exist")
+            pair = pair_from_file(reg, original, decoded, frame if decoded.suffix != ".lwb" else 0)
+        else:
+            pair = pair_from_codec(reg, original, codec_config(reg, codec, param, seed))
+        if png is None and has_display():
+            show_window(pair, max_error)
+            return
+        path = render_png(pair, png or Path("lwbench-view.png"), max_error)
+    except LwbenchError as exc:
+        _fail(str(exc))
+    why = "" if png is not None else " (no display here)"
+    console.print(f"wrote {escape(str(path))}{why}: {escape(pair.title)}")
 
 
 # --------------------------------------------------------------------------------- simulate

@@ -61,6 +61,13 @@ class Dataset(abc.ABC):
         for i in range(len(self)):
             yield self.frame(i)
 
+    def frame_origin(self, index: int) -> dict[str, Any]:
+        """Where frame ``index`` came from, for files written from it (``lwbench encode`` /
+        ``decode``): ``name`` (a readable file stem) and, where the source has them, ``stamp_ns``,
+        ``log_ns``, ``topic`` and ``frame_id`` (ROS bags), so decoded clouds keep their names,
+        topics and stamps. Cheap: it reads no scan."""
+        return {"name": f"{index:06d}"}
+
     @classmethod
     def sniff(cls, path: Path) -> bool:
         """Whether this loader can read ``path`` (only loaders with a ``path`` parameter)."""

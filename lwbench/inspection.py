@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lwbench.errors import DataFormatError, DataWarning
+from lwbench.errors import DataFormatError, DataWarning, LwbenchError
 from lwbench.payload import MAGIC, Payload
 from lwbench.registry import Registry
 from lwbench.sensor import SensorModel
@@ -29,28 +29,47 @@ def _cloud_summary(points: np.ndarray) -> dict:
 
 
 WHAT_INSPECT_READS = (
-    "lwbench inspect reads lwbench payloads, lwbench results stores, scan files (.bin, .pcd.bin, .pcd, "
-    ".ply, .xyz) and dataset folders (KITTI layout, folders of scan files)"
+    "lwbench inspect reads lwbench payloads (.lwb), stream files (.lwbs) and payload folders, lwbench results "
+    "stores, scan files (.bin, .pcd.bin, .pcd, .ply, .xyz), ROS bags (.db3, .mcap, .bag, rosbag2 folders) and "
+    "dataset folders (KITTI layout, folders of scan files)"
 )
 
 
 def describe(path: Path, registry: Registry) -> dict:
     """What ``path`` holds, read without writing a byte (a store is opened read-only)."""
+    from lwbench.streamfile import MAGIC as STREAM_MAGIC
+    from lwbench.streamfile import PAYLOAD_SUFFIX, STREAM_JSON, open_payloads
+
+    sqlite = False
     if path.is_file():
         with open(path, "rb") as fh:
             head = fh.read(16)
         if head.startswith(MAGIC):
-            return _describe_payload(path.read_bytes(), registry)
-        if head.startswith(b"SQLite format 3"):
-            if not is_results_store(path):
-                raise DataFormatError(
-                    f"{path}: an SQLite database, but not an lwbench results store (no results/meta tables "
-                    f"of lwbench's schema; a ROS 2 bag?); {WHAT_INSPECT_READS}"
-                )
+            return _describe_payload(path, registry)
+        if head.startswith(STREAM_MAGIC):
+            from lwbench.transcode import describe_source
+
+            return describe_source(registry, open_payloads(path))
+        sqlite = head.startswith(b"SQLite format 3")
+        if sqlite and is_results_store(path):
             return _describe_store(path)
+    elif path.is_dir() and ((path / STREAM_JSON).is_file() or any(path.glob(f"*{PAYLOAD_SUFFIX}"))):
+        from lwbench.transcode import describe_source
+
+        return describe_source(registry, open_payloads(path))
+    not_store = (f"{path}: an SQLite database, but not an lwbench results store (no results/meta tables of "
+                 "lwbench's schema)")
     for name, cls in registry.datasets.items():
         if cls.sniff(path):
-            return _describe_dataset(path, name, cls)
+            if not sqlite:
+                return _describe_dataset(path, name, cls)
+            try:
+                return _describe_dataset(path, name, cls)
+            except LwbenchError as exc:
+                why = f"{not_store}, nor a bag the {name} loader reads ({exc}); {WHAT_INSPECT_READS}"
+                raise DataFormatError(why) from None
+    if sqlite:
+        raise DataFormatError(f"{not_store}, nor a ROS 2 bag; {WHAT_INSPECT_READS}")
     raise DataFormatError(f"{path}: not something lwbench can read; {WHAT_INSPECT_READS}")
 
 
@@ -98,8 +117,21 @@ def _describe_dataset(path: Path, name: str, cls) -> dict:
     return info
 
 
-def _describe_payload(data: bytes, registry: Registry) -> dict:
+def _describe_payload(path: Path, registry: Registry) -> dict:
+    """A ``.lwb``: decoded with its stream's header (``stream.json``) or ``sensor.json`` beside it,
+    when there is one, so a payload naming a derived sensor by id decodes here too."""
+    from lwbench.streamfile import open_payloads
+
+    data = path.read_bytes()
     payload = Payload.from_bytes(data)
+    params: dict = {}
+    try:
+        source = open_payloads(path)
+        source.register_sensors()
+        if source.header is not None and source.header.codec == payload.codec_id:
+            params = dict(source.header.params)
+    except LwbenchError:
+        pass  # what lies beside the payload is not needed to describe it
     info: dict = {
         "kind": "lwbench payload",
         "bytes": len(data),
@@ -114,7 +146,7 @@ def _describe_payload(data: bytes, registry: Registry) -> dict:
         info["decoded"] = f"codec {payload.codec_id!r} is not installed"
         return info
     try:
-        codec = cls()
+        codec = cls(**params)
         points = codec.decode(data)
         info.update({f"decoded {k}": v for k, v in _cloud_summary(np.asarray(points)).items()})
     except Exception as exc:  # noqa: BLE001 - report, do not crash, on a payload we cannot decode

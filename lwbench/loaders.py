@@ -283,6 +283,10 @@ class _ScanFiles(Dataset):
         pose = self.poses[index] if self.poses is not None else None
         return _frame(scan, self.sensor, index, self._stamp(index), pose)
 
+    def frame_origin(self, index: int) -> dict[str, Any]:
+        """The scan file's stem names what is written from it (``000042.bin`` -> ``000042``)."""
+        return {"name": _stem(self.files[index])}
+
     def source_info(self) -> dict[str, Any]:
         """How this dataset was read: layout, poses, skipped files and the sensor's source."""
         info: dict[str, Any] = {"layout": self.layout, "poses from": self.pose_source or "none"}

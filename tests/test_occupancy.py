@@ -101,3 +101,22 @@ def test_out_of_grid_points_raise():
 
 def test_test_sensor_is_street_sized():
     assert TEST32.max_range >= 50
+
+
+def test_the_live_map_equals_the_batch_map_in_any_order(street):
+    """What lwbench stream's base keeps: one insert per received scan, the same map exactly."""
+    from lwbench_metrics.occupancy import OccupancyMap
+
+    scans, poses, sensor = _originals(street), np.stack([street[i].pose for i in range(len(street))]), TEST32
+    for voxel in (0.2, 0.05):
+        expected = occupied_voxels(scans, poses, sensor, voxel)
+        for order in (range(len(scans)), np.random.default_rng(3).permutation(len(scans))):
+            live = OccupancyMap(sensor, voxel)
+            for i in order:
+                live.insert(scans[i], poses[i])
+            assert np.array_equal(live.occupied(), expected)
+        partial = OccupancyMap(sensor, voxel)
+        for i in (4, 1):
+            partial.insert(scans[i], poses[i])
+        assert np.array_equal(partial.occupied(), occupied_voxels([scans[4], scans[1]], poses[[4, 1]], sensor, voxel))
+    assert len(OccupancyMap(sensor).occupied()) == 0

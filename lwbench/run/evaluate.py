@@ -33,7 +33,7 @@ from lwbench.sensor import register_sensor
 
 from .plan import CodecConfig
 
-__all__ = ["FrameResult", "Evaluator", "Encoded"]
+__all__ = ["FrameResult", "Evaluator", "Encoded", "checked_cloud", "encode_decode"]
 
 
 @dataclass
@@ -94,12 +94,18 @@ def encode_decode(codec_cls: type[Codec], config: CodecConfig, encoder: Codec, f
         decoder = codec_cls(**config.params)
         with watch.time("decode_ms"):
             decoded = decoder.decode(bytes(payload))
+    return Encoded(bytes(payload), checked_cloud(config.name, decoded), watch.ms, mem.peak_mb, device)
+
+
+def checked_cloud(codec: str, decoded: object) -> np.ndarray:
+    """A decoder's output as float32 ``(M, 3)``, or ``DecodeError`` if it is not a finite cloud
+    (every receiver -- the runner, ``lwbench decode``, the stream's base -- checks the same way)."""
     decoded = np.asarray(decoded)
     if decoded.ndim != 2 or decoded.shape[1] != 3 or not np.issubdtype(decoded.dtype, np.floating):
-        raise DecodeError(f"{config.name}: decode returned shape {decoded.shape}, expected (M, 3)")
+        raise DecodeError(f"{codec}: decode returned shape {decoded.shape}, expected (M, 3)")
     if not np.isfinite(decoded).all():
-        raise DecodeError(f"{config.name}: decode returned NaN/inf coordinates")
-    return Encoded(bytes(payload), decoded.astype(np.float32, copy=False), watch.ms, mem.peak_mb, device)
+        raise DecodeError(f"{codec}: decode returned NaN/inf coordinates")
+    return decoded.astype(np.float32, copy=False)
 
 
 class Evaluator:
