@@ -24,6 +24,15 @@ from lwbench.errors import (
 from lwbench.frame import Frame
 from lwbench.hookspecs import hookimpl
 from lwbench.io import SENSOR_FILE, read_kitti_bin, read_point_file, write_kitti_sequence
+from lwbench.limits import (
+    MAX_GENERATED_POINTS,
+    MAX_POINTS,
+    MAX_WORK,
+    check_count,
+    check_work,
+    checked_cloud,
+    zstd_decompress,
+)
 from lwbench.metric import HIGHER, LOWER, Evaluation, FrameMetric, MetricId, SequenceEvaluation, SequenceMetric
 from lwbench.params import Param
 from lwbench.payload import Payload
@@ -47,6 +56,9 @@ __all__ = [
     "HIGHER",
     "LOWER",
     "MetricId",
+    "MAX_GENERATED_POINTS",
+    "MAX_POINTS",
+    "MAX_WORK",
     "InvalidFrameError",
     "LwbenchError",
     "MissingDependencyError",
@@ -66,6 +78,9 @@ __all__ = [
     "SequenceEvaluation",
     "SequenceMetric",
     "StoreError",
+    "check_count",
+    "check_work",
+    "checked_cloud",
     "get_sensor",
     "hookimpl",
     "import_open3d",
@@ -76,5 +91,6 @@ __all__ = [
     "resolve_device",
     "unpack_points",
     "write_kitti_sequence",
+    "zstd_decompress",
     "__version__",
 ]

@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from lwbench.errors import DataWarning
-from lwbench.sensor import SensorModel
+from lwbench.sensor import MAX_BEAMS, SensorModel  # more rings than MAX_BEAMS: the order reading is wrong
 
 __all__ = [
     "Derivation",
@@ -48,7 +48,6 @@ METHOD_RING_MAJOR = "ring-major order"
 METHOD_FIRING_MAJOR = "firing-major order"
 METHOD_HISTOGRAM = "elevation histogram"
 
-MAX_BEAMS = 256  # more rings than any spinning LiDAR has: the order reading is wrong
 # A step back along the sweep of up to this many degrees is jitter at a ring's seam (per-laser
 # azimuth offsets: ~4 deg on an OS1, a few deg on KITTI); a larger one is a gap *forward*
 # (a cropped or occluded part of the turn), e.g. the 280 deg outside a camera's field of view.
