@@ -128,7 +128,8 @@ def checked_cloud(points: object, codec: str) -> np.ndarray:
     pts = np.asarray(points)
     if pts.ndim != 2 or pts.shape[1] != 3 or not np.issubdtype(pts.dtype, np.floating):
         raise PayloadError(f"{codec} payload: decodes to shape {pts.shape} ({pts.dtype}), not (M, 3) floats")
-    pts = np.ascontiguousarray(pts, dtype=np.float32)
+    with np.errstate(over="ignore", invalid="ignore"):  # overflow to inf is refused just below
+        pts = np.ascontiguousarray(pts, dtype=np.float32)
     if not np.isfinite(pts).all():
         bad = int((~np.isfinite(pts).all(axis=1)).sum())
         raise PayloadError(f"{codec} payload: decodes to {bad} of {len(pts)} points with NaN/inf coordinates")
