@@ -20,6 +20,7 @@ from lwbench.errors import (
     PluginError,
     SelectionError,
     StoreError,
+    WorkerError,
 )
 from lwbench.frame import Frame
 from lwbench.hookspecs import hookimpl
@@ -34,6 +35,7 @@ from lwbench.limits import (
     zstd_decompress,
 )
 from lwbench.metric import HIGHER, LOWER, Evaluation, FrameMetric, MetricId, SequenceEvaluation, SequenceMetric
+from lwbench.parallel import thread_budget
 from lwbench.params import Param
 from lwbench.payload import Payload
 from lwbench.points import POINT_ENCODINGS, pack_points, unpack_points
@@ -78,6 +80,7 @@ __all__ = [
     "SequenceEvaluation",
     "SequenceMetric",
     "StoreError",
+    "WorkerError",
     "check_count",
     "check_work",
     "checked_cloud",
@@ -89,6 +92,7 @@ __all__ = [
     "read_point_file",
     "register_sensor",
     "resolve_device",
+    "thread_budget",
     "unpack_points",
     "write_kitti_sequence",
     "zstd_decompress",
