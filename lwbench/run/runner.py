@@ -18,7 +18,7 @@ from lwbench.registry import Registry, get_registry
 from lwbench.store import ResultRow, ResultStore
 
 from .evaluate import Evaluator, FrameResult
-from .execute import DEFAULT_TIMEOUT_S, FrameTask, InProcessExecutor, ProcessExecutor, Worker
+from .execute import DEFAULT_TIMEOUT_S, PRELOAD, FrameTask, InProcessExecutor, ProcessExecutor, Worker
 from .plan import CodecConfig, RunPlan
 from .record import Provenance, RowFactory, record_frame, record_original
 from .sequence import SequenceStage
@@ -179,5 +179,8 @@ class Runner:
                                max_in_flight=self.workers, timeout_s=self.timeout_s)
         if not self.isolate:
             return InProcessExecutor(self.worker)
+        # Torch (a second or two to import) is preloaded only when a codec of the run uses it.
+        torch = any(self.registry.codec(c.name).supports_gpu for c in self.configs)
+        preload = tuple(m for m in PRELOAD if m != "torch" or torch)
         return ProcessExecutor(self.registry.recipe(), self.plan.metric_params, workers=self.workers,
-                               timeout_s=self.timeout_s, memory_mb=self.memory_mb)
+                               timeout_s=self.timeout_s, memory_mb=self.memory_mb, preload=preload)
