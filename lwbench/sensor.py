@@ -212,7 +212,7 @@ class SensorModel:
             return get_sensor(d["preset"])
         table = d["elevations_deg"]
         if not isinstance(table, (list, tuple)) or not 1 <= len(table) <= MAX_BEAMS:
-            raise ValueError(f"elevations_deg must be a list of 1 to {MAX_BEAMS} angles")
+            raise ValueError(f"a sensor has 1 to {MAX_BEAMS} beams: elevations_deg lists their angles")
         if not all(isinstance(e, (int, float)) and not isinstance(e, bool) for e in table):
             raise TypeError("elevations_deg must hold numbers")
         for key in ("azimuth_step_deg", "min_range", "max_range", "rate_hz"):
