@@ -41,7 +41,7 @@ console = Console(width=None if sys.stdout.isatty() else 200)
 err_console = Console(stderr=True, soft_wrap=True)
 
 DEFAULT_STORE = Path("lwbench-results/results.sqlite")
-DEFAULT_TIMEOUT = 600.0  # lwbench.run.DEFAULT_TIMEOUT_S (not imported here: the CLI starts fast)
+DEFAULT_TIMEOUT = 3600.0  # lwbench.run.DEFAULT_TIMEOUT_S (not imported here: the CLI starts fast)
 
 _state = {"strict": False}
 
