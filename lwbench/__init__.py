@@ -20,11 +20,22 @@ from lwbench.errors import (
     PluginError,
     SelectionError,
     StoreError,
+    WorkerError,
 )
 from lwbench.frame import Frame
 from lwbench.hookspecs import hookimpl
 from lwbench.io import SENSOR_FILE, read_kitti_bin, read_point_file, write_kitti_sequence
+from lwbench.limits import (
+    MAX_GENERATED_POINTS,
+    MAX_POINTS,
+    MAX_WORK,
+    check_count,
+    check_work,
+    checked_cloud,
+    zstd_decompress,
+)
 from lwbench.metric import HIGHER, LOWER, Evaluation, FrameMetric, MetricId, SequenceEvaluation, SequenceMetric
+from lwbench.parallel import thread_budget
 from lwbench.params import Param
 from lwbench.payload import Payload
 from lwbench.points import POINT_ENCODINGS, pack_points, unpack_points
@@ -47,6 +58,9 @@ __all__ = [
     "HIGHER",
     "LOWER",
     "MetricId",
+    "MAX_GENERATED_POINTS",
+    "MAX_POINTS",
+    "MAX_WORK",
     "InvalidFrameError",
     "LwbenchError",
     "MissingDependencyError",
@@ -66,6 +80,10 @@ __all__ = [
     "SequenceEvaluation",
     "SequenceMetric",
     "StoreError",
+    "WorkerError",
+    "check_count",
+    "check_work",
+    "checked_cloud",
     "get_sensor",
     "hookimpl",
     "import_open3d",
@@ -74,8 +92,10 @@ __all__ = [
     "read_point_file",
     "register_sensor",
     "resolve_device",
+    "thread_budget",
     "top_k",
     "unpack_points",
     "write_kitti_sequence",
+    "zstd_decompress",
     "__version__",
 ]

@@ -41,6 +41,7 @@ console = Console(width=None if sys.stdout.isatty() else 200)
 err_console = Console(stderr=True, soft_wrap=True)
 
 DEFAULT_STORE = Path("lwbench-results/results.sqlite")
+DEFAULT_TIMEOUT = 3600.0  # lwbench.run.DEFAULT_TIMEOUT_S (not imported here: the CLI starts fast)
 
 _state = {"strict": False}
 
@@ -172,10 +173,24 @@ def run(
     config: Annotated[
         Path | None, typer.Option(help="A TOML run file: datasets x codecs x grids x seeds (see docs).")
     ] = None,
+    isolate: Annotated[
+        bool, typer.Option("--isolate/--in-process",
+                           help="Evaluate in worker processes with a timeout and a memory ceiling (default).")
+    ] = True,
+    timeout: Annotated[
+        float, typer.Option(help="Seconds one evaluation may take before its worker is killed (0: no limit).", min=0)
+    ] = DEFAULT_TIMEOUT,
+    memory_limit: Annotated[
+        int | None, typer.Option(help="MB of memory per worker (default: 80% of the machine's, shared).", min=1)
+    ] = None,
+    executor: Annotated[str, typer.Option(help="local, or ray: evaluations as Ray tasks (lwbench[ray]).")] = "local",
+    address: Annotated[
+        str | None, typer.Option(help="Ray cluster address (--executor ray; default: start a local Ray).")
+    ] = None,
 ) -> None:
     """Evaluate codecs on a dataset; every result lands in the store; print the leaderboard."""
     from lwbench.leaderboard import build_leaderboard
-    from lwbench.run import Runner, parse_assignments, parse_sweeps, plan_run
+    from lwbench.run import Runner, parse_assignments, parse_sweeps, plan_run, preflight
     from lwbench.run.config import load_run_file
     from lwbench.store import ResultStore
 
@@ -205,10 +220,17 @@ def run(
             )]
         info = reg.metric_info()
         wanted = _columns(columns, info, reg)
+        if executor not in ("local", "ray"):
+            _fail(f"--executor must be local or ray, got {executor!r}")
+        # Everything that can be checked is, before the store is opened: a bad dataset, scan,
+        # sensor file or device is one line and exit 2 with nothing written.
+        checked = [preflight(reg, plan) for plan in plans]
         keys: set[str] = set()
         with ResultStore(store) as results:
-            for plan in plans:
-                runner = Runner(results, plan, registry=reg, workers=workers, retry_failed=retry_failed, force=force)
+            for plan, dataset in zip(plans, checked, strict=True):
+                runner = Runner(results, plan, registry=reg, workers=workers, retry_failed=retry_failed, force=force,
+                                isolate=isolate, timeout_s=timeout or None, memory_mb=memory_limit,
+                                executor=executor, address=address, dataset=dataset)
                 n_total = len(runner.frame_indices) * len(runner.configs)
                 console.print(
                     f"[bold]lwbench run[/]: {escape(plan.dataset.label)} · {len(runner.frame_indices)} frame(s) · "
@@ -456,7 +478,8 @@ def report(
             store = run_file.store
         run(config=config, store=store, dataset=None, dataset_param=[], codec=[], param=[], frames=None,
             workers=run_file.workers, seed=0, sequence_metrics=True, retry_failed=False, force=False,
-            metric_param=[], sort="ratio", columns=None, min_coverage=DEFAULT_MIN_COVERAGE)
+            metric_param=[], sort="ratio", columns=None, min_coverage=DEFAULT_MIN_COVERAGE, isolate=True,
+            timeout=DEFAULT_TIMEOUT, memory_limit=None, executor="local", address=None)
     if not store.exists():
         _fail(f"no results store at {store} (run `lwbench run` first)")
     try:

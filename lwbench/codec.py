@@ -218,4 +218,4 @@ class SelectionCodec(Codec):
         return self.encode_selected(frame, self.select(frame))
 
     def decode(self, data: bytes) -> np.ndarray:
-        return unpack_points(self.read_payload(data).body)
+        return unpack_points(self.read_payload(data).body, self.name)

@@ -31,7 +31,9 @@ from typing import Any
 import numpy as np
 
 from lwbench.errors import DataWarning
-from lwbench.sensor import SensorModel
+
+# More rings than MAX_BEAMS: the order reading is wrong.
+from lwbench.sensor import MAX_BEAMS, MIN_AZIMUTH_STEP_DEG, SensorModel
 
 __all__ = [
     "Derivation",
@@ -48,7 +50,6 @@ METHOD_RING_MAJOR = "ring-major order"
 METHOD_FIRING_MAJOR = "firing-major order"
 METHOD_HISTOGRAM = "elevation histogram"
 
-MAX_BEAMS = 256  # more rings than any spinning LiDAR has: the order reading is wrong
 # A step back along the sweep of up to this many degrees is jitter at a ring's seam (per-laser
 # azimuth offsets: ~4 deg on an OS1, a few deg on KITTI); a larger one is a gap *forward*
 # (a cropped or occluded part of the turn), e.g. the 280 deg outside a camera's field of view.
@@ -316,7 +317,9 @@ def derive_sensor(
     sensor = SensorModel(
         name=name,
         elevations_deg=tuple(float(t) for t in reading.table),
-        azimuth_step_deg=360.0 / max(1, round(360.0 / reading.step)),
+        # Never finer than a real sensor fires (a shuffled scan's histogram reading gave 0.007 deg,
+        # whose grid every metric would then allocate).
+        azimuth_step_deg=360.0 / max(1, min(round(360.0 / reading.step), int(360 / MIN_AZIMUTH_STEP_DEG))),
         min_range=float(np.floor(r.min() * 10) / 10),
         max_range=float(np.ceil(r.max())),
         rate_hz=rate_hz,

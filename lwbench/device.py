@@ -22,4 +22,6 @@ def resolve_device(name: str):
         raise ParameterError(f"device: {exc}") from None
     if dev.type == "cuda" and not torch.cuda.is_available():
         raise ParameterError("device: CUDA was requested but no GPU is visible to torch")
+    if dev.type == "cuda" and dev.index is not None and dev.index >= torch.cuda.device_count():
+        raise ParameterError(f"device: {name} requested, but torch sees {torch.cuda.device_count()} GPU(s)")
     return dev

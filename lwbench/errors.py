@@ -19,6 +19,7 @@ __all__ = [
     "PluginError",
     "MissingDependencyError",
     "StoreError",
+    "WorkerError",
     "DataWarning",
 ]
 
@@ -61,6 +62,11 @@ class MissingDependencyError(LwbenchError, ImportError):
 
 class StoreError(LwbenchError):
     """A file given as a results store is not one (or has a schema this lwbench cannot read)."""
+
+
+class WorkerError(LwbenchError):
+    """An evaluation's worker process was lost: killed after the per-call timeout, or dead
+    (a segfault, ``os._exit``, a native library aborting). Recorded as the evaluation's failure."""
 
 
 class DataWarning(UserWarning):

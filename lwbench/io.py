@@ -7,7 +7,12 @@ simulated sequence can be fed to any KITTI-reading tool.
 
 from __future__ import annotations
 
+import contextlib
 import json
+import os
+import re
+import struct
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -16,7 +21,7 @@ import numpy as np
 from lwbench import Frame
 from lwbench.deps import import_open3d
 from lwbench.errors import DataFormatError, DataWarning
-from lwbench.sensor import SensorModel
+from lwbench.sensor import MIN_AZIMUTH_STEP_DEG, SensorModel
 
 __all__ = [
     "ScanArrays",
@@ -25,6 +30,7 @@ __all__ = [
     "read_kitti_poses",
     "read_kitti_calib",
     "read_pose_file",
+    "read_times",
     "read_ouster_metadata",
     "read_sensor_file",
     "read_xyz",
@@ -194,9 +200,21 @@ def _header_lines(path: Path, end: bytes) -> tuple[list[str], int] | None:
     return None
 
 
-def _declared(path: Path) -> tuple[int, int | None, int] | None:
-    """What a PCD or PLY header promises: point count, body bytes when the body has a fixed
-    size (binary, no PLY lists; ``None`` otherwise) and header bytes. None if unparsable."""
+@dataclass(frozen=True)
+class _Declared:
+    """What a PCD or PLY header promises, to check against the bytes present."""
+
+    points: int
+    header: int  # bytes of the header
+    body: int | None  # exact body bytes (binary, fixed-size records), else None
+    min_body: int  # bytes the declared points need at least (binary), else 0
+    ascii: bool  # one text line per point after the header
+    compressed: bool = False  # PCD binary_compressed: sizes in the body's first 8 bytes
+    record: int = 0  # bytes per point (PCD)
+
+
+def _declared(path: Path) -> _Declared | None:
+    """What a PCD or PLY header promises (None if unparsable)."""
     suffix = path.suffix.lower()
     found = _header_lines(path, b"DATA" if suffix == ".pcd" else b"end_header")
     if found is None:
@@ -210,24 +228,95 @@ def _declared(path: Path) -> tuple[int, int | None, int] | None:
                                                          strict=True))
         except (KeyError, ValueError, IndexError):
             return None
-        body = points * record if kv.get("DATA", [""])[0].lower() == "binary" else None
-        return points, body, header
+        data = kv.get("DATA", [""])[0].lower()
+        if points < 0 or record <= 0:
+            return None
+        body = points * record if data == "binary" else None
+        return _Declared(points, header, body, body or 0, data == "ascii", data == "binary_compressed", record)
     points, body, element, binary = 0, 0, None, any(ln.startswith("format binary") for ln in lines)
+    min_body, fixed = 0, True  # bytes of the fixed-size elements before the first list
     try:
         for ln in lines:
             words = ln.split()
             if words[:1] == ["element"]:
                 element = (words[1], int(words[2]))
+                if element[1] < 0:
+                    return None
                 if words[1] == "vertex":
                     points = element[1]
-            elif words[:1] == ["property"] and element is not None and body is not None:
+            elif words[:1] == ["property"] and element is not None:
                 if words[1] == "list":
-                    body = None
+                    body, fixed = None, False
                 else:
-                    body += element[1] * _PLY_SIZES[words[1]]
+                    size = element[1] * _PLY_SIZES[words[1]]
+                    if body is not None:
+                        body += size
+                    if fixed:
+                        min_body += size
     except (IndexError, ValueError, KeyError):
         return None
-    return points, (body if binary else None), header
+    return _Declared(points, header, body if binary else None, min_body if binary else 0, not binary)
+
+
+def _text_lines(path: Path, start: int) -> int:
+    """Non-empty text lines after byte ``start`` (streamed: a file may be large)."""
+    count, last = 0, b"\n"
+    with open(path, "rb") as fh:
+        fh.seek(start)
+        while chunk := fh.read(1 << 22):
+            count += chunk.count(b"\n") - chunk.count(b"\n\n") - chunk.count(b"\n\r\n")
+            last = chunk[-1:]
+    return count + (last not in (b"\n", b""))
+
+
+def _check_declared(path: Path, d: _Declared, size: int) -> None:
+    """Refuse a PCD/PLY whose header promises more points than its bytes hold: Open3D then
+    returns uninitialised memory (1,000 declared, 10 rows -> 1,000 points up to 3e35), which
+    would be scored as a real scan."""
+    what = f"the header declares {d.points} points"
+    if d.body is not None and size < d.header + d.body:
+        raise DataFormatError(
+            f"{path}: truncated: {what} ({d.body} bytes), the file holds {max(size - d.header, 0)} bytes after it"
+        )
+    if d.min_body and size < d.header + d.min_body:
+        raise DataFormatError(f"{path}: truncated: {what} ({d.min_body} bytes at least), the file holds "
+                              f"{max(size - d.header, 0)} bytes after it")
+    if d.compressed:
+        with open(path, "rb") as fh:
+            fh.seek(d.header)
+            head = fh.read(8)
+        if len(head) < 8:
+            raise DataFormatError(f"{path}: truncated: no compressed body after the header")
+        packed, unpacked = struct.unpack("<II", head)
+        if unpacked != d.points * d.record or size < d.header + 8 + packed:
+            raise DataFormatError(f"{path}: {what} ({d.points * d.record} bytes); the compressed body says "
+                                  f"{unpacked} bytes in {packed}, the file holds {max(size - d.header - 8, 0)}")
+    if d.ascii and d.points:
+        # A text record is at least two bytes per point ("0\n"): a cheap bound first, then lines.
+        if size - d.header < 2 * d.points or _text_lines(path, d.header) < d.points:
+            raise DataFormatError(f"{path}: truncated: {what}, fewer lines of points follow it")
+
+
+@contextlib.contextmanager
+def _captured_stderr():
+    """Collect what C++ code writes to file descriptor 2 (Open3D's errors) instead of letting
+    it reach the terminal; yields a list that holds the text, one line, once the block ends."""
+    said: list[str] = []
+    try:
+        saved = os.dup(2)
+    except OSError:  # no stderr to redirect
+        yield said
+        return
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), 2)
+        try:
+            yield said
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            tmp.seek(0)
+            text = re.sub(r"\x1b\[[0-9;]*m", "", tmp.read(4000).decode(errors="replace"))
+            said.append(" ".join(text.split())[:300])
 
 
 def read_point_file(path: str | Path) -> ScanArrays:
@@ -253,19 +342,16 @@ def read_point_file(path: str | Path) -> ScanArrays:
     declared = _declared(path)
     if declared is None:
         raise DataFormatError(f"{path}: no readable {suffix[1:].upper()} header")
-    count, body, header = declared
-    if body is not None and size < header + body:
-        raise DataFormatError(
-            f"{path}: truncated: the header declares {count} points ({body} bytes), the file holds "
-            f"{max(size - header, 0)} bytes after it"
-        )
+    count = declared.points
+    _check_declared(path, declared, size)
     o3d = import_open3d()
-    pc = o3d.t.io.read_point_cloud(str(path))
+    # Open3D prints its own (red) errors for files it cannot read; lwbench says it once, below.
+    with _captured_stderr() as said:
+        pc = o3d.t.io.read_point_cloud(str(path))
     n_read = pc.point.positions.shape[0] if "positions" in pc.point else 0
     if n_read != count:
-        raise DataFormatError(
-            f"{path}: the header declares {count} points but Open3D read {n_read} (corrupt or truncated file?)"
-        )
+        why = f" (Open3D: {said[0]})" if said and said[0] else " (corrupt or truncated file?)"
+        raise DataFormatError(f"{path}: the header declares {count} points but Open3D read {n_read}{why}")
     if count == 0:
         return ScanArrays(np.zeros((0, 3), np.float32))
     fields = {k.lower().removeprefix("scalar_"): pc.point[k].numpy() for k in pc.point}
@@ -285,29 +371,96 @@ def read_point_file(path: str | Path) -> ScanArrays:
     ).finite()
 
 
+_MAX_TRANSLATION_M = 1e8  # more than the Earth's radius (ECEF poses)
+
+
+def _numbers(path: str | Path, lines: list[list[str]], what: str) -> np.ndarray:
+    """Rows of numbers, or a :class:`DataFormatError` naming the first line that is not."""
+    try:
+        return np.array(lines, dtype=np.float64).reshape(len(lines), -1)
+    except ValueError:
+        for i, ln in enumerate(lines):
+            try:
+                [float(v) for v in ln]
+            except ValueError:
+                text = " ".join(ln)[:80]
+                raise DataFormatError(f"{path}: line {i + 1} of the {what} is not numbers: {text!r}") from None
+        raise DataFormatError(f"{path}: the {what} is not a table of numbers") from None
+
+
+def _checked_poses(path: str | Path, poses: np.ndarray) -> np.ndarray:
+    """Poses a real trajectory can have: finite, rotations orthonormal (to 1 %, as files print
+    them), translations within the Earth's radius. A NaN pose or a zero quaternion would
+    otherwise end in a traceback, or in metrics that quietly compare against nonsense."""
+    bad = ~np.isfinite(poses).all(axis=(1, 2))
+    if bad.any():
+        raise DataFormatError(f"{path}: pose {int(np.flatnonzero(bad)[0]) + 1} holds NaN/inf")
+    rot = poses[:, :3, :3]
+    err = np.abs(rot @ rot.transpose(0, 2, 1) - np.eye(3)).max(axis=(1, 2))
+    det = np.linalg.det(rot)
+    worst = np.flatnonzero((err > 1e-2) | (det < 0))
+    if len(worst):
+        raise DataFormatError(f"{path}: pose {int(worst[0]) + 1} is not rigid (orthonormal rotation, det +1)")
+    far = np.abs(poses[:, :3, 3]).max(axis=1) > _MAX_TRANSLATION_M
+    if far.any():
+        first = int(np.flatnonzero(far)[0]) + 1
+        raise DataFormatError(f"{path}: pose {first} lies more than {_MAX_TRANSLATION_M:g} m away")
+    return poses
+
+
 def _rows_to_poses(rows: np.ndarray) -> np.ndarray:
     poses = np.tile(np.eye(4), (len(rows), 1, 1))
     poses[:, :3, :4] = rows.reshape(-1, 3, 4)
     return poses
 
 
+def _pose_lines(path: str | Path) -> list[list[str]]:
+    try:
+        text = Path(path).read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DataFormatError(f"{path}: not a readable pose file ({exc})") from None
+    lines = [ln.split() for ln in text.splitlines() if ln.strip() and ln.lstrip()[0] != "#"]
+    if not lines:
+        raise DataFormatError(f"{path}: empty pose file")
+    return lines
+
+
 def read_kitti_poses(path: str | Path) -> np.ndarray:
     """``poses.txt``: one row of 12 numbers (3x4, row-major) per frame -> ``(N, 4, 4)``."""
-    rows = np.loadtxt(path, ndmin=2)
-    if rows.shape[1] != 12:
-        raise DataFormatError(f"{path}: expected 12 numbers per line, got {rows.shape[1]}")
-    return _rows_to_poses(rows)
+    lines = _pose_lines(path)
+    width = {len(ln) for ln in lines}
+    if width != {12}:
+        raise DataFormatError(f"{path}: expected 12 numbers per line, got {sorted(width)}")
+    return _checked_poses(path, _rows_to_poses(_numbers(path, lines, "poses")))
 
 
 def read_kitti_calib(path: str | Path) -> np.ndarray | None:
     """The ``Tr`` (velodyne -> camera) transform of a KITTI odometry ``calib.txt``, if present."""
-    for line in Path(path).read_text().splitlines():
+    try:
+        text = Path(path).read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DataFormatError(f"{path}: not a readable calib.txt ({exc})") from None
+    for line in text.splitlines():
         key, _, values = line.partition(":")
         if key.strip() in ("Tr", "Tr_velo_to_cam"):
+            row = _numbers(path, [values.split()], "Tr line")
+            if row.size != 12:
+                raise DataFormatError(f"{path}: Tr holds {row.size} numbers, not 12")
             t = np.eye(4)
-            t[:3, :4] = np.array(values.split(), dtype=np.float64).reshape(3, 4)
-            return t
+            t[:3, :4] = row.reshape(3, 4)
+            return _checked_poses(path, t[None])[0]
     return None
+
+
+def read_times(path: str | Path, n: int | None = None) -> np.ndarray:
+    """``times.txt``: one time stamp (s) per line, finite."""
+    lines = _pose_lines(path)
+    if {len(ln) for ln in lines} != {1}:
+        raise DataFormatError(f"{path}: expected one time stamp per line")
+    stamps = _numbers(path, lines, "time stamps")[:, 0]
+    if not np.isfinite(stamps).all():
+        raise DataFormatError(f"{path}: time stamps hold NaN/inf")
+    return stamps
 
 
 def read_pose_file(path: str | Path) -> tuple[list[str] | None, np.ndarray]:
@@ -318,29 +471,33 @@ def read_pose_file(path: str | Path) -> tuple[list[str] | None, np.ndarray]:
     - a key then 12 numbers: stamped KITTI (key = file stem or time stamp);
     - a key then 7 numbers: TUM with a non-numeric stamp.
 
-    Returns the per-line keys (``None`` for plain KITTI) and ``(N, 4, 4)`` poses.
+    Returns the per-line keys (``None`` for plain KITTI) and ``(N, 4, 4)`` poses, checked
+    (finite, rigid; a TUM quaternion of zero length is an error, not a traceback).
     """
     from scipy.spatial.transform import Rotation
 
-    lines = [ln.split() for ln in Path(path).read_text().splitlines() if ln.strip() and ln[0] != "#"]
-    if not lines:
-        raise DataFormatError(f"{path}: empty pose file")
+    lines = _pose_lines(path)
     width = {len(ln) for ln in lines}
     if len(width) != 1:
         raise DataFormatError(f"{path}: lines have different numbers of fields {sorted(width)}")
     (w,) = width
     if w == 12:
-        return None, _rows_to_poses(np.array(lines, dtype=np.float64))
+        return None, _checked_poses(path, _rows_to_poses(_numbers(path, lines, "poses")))
+    if w not in (8, 13):
+        raise DataFormatError(f"{path}: {w} fields per line is neither KITTI (12) nor TUM (8)")
     keys = [ln[0] for ln in lines]
-    vals = np.array([ln[1:] for ln in lines], dtype=np.float64)
+    vals = _numbers(path, [ln[1:] for ln in lines], "poses")
     if w == 13:
-        return keys, _rows_to_poses(vals)
-    if w == 8:
-        poses = np.tile(np.eye(4), (len(vals), 1, 1))
-        poses[:, :3, 3] = vals[:, :3]
-        poses[:, :3, :3] = Rotation.from_quat(vals[:, 3:7]).as_matrix()
-        return keys, poses
-    raise DataFormatError(f"{path}: {w} fields per line is neither KITTI (12) nor TUM (8)")
+        return keys, _checked_poses(path, _rows_to_poses(vals))
+    if not np.isfinite(vals).all():
+        raise DataFormatError(f"{path}: pose {int(np.flatnonzero(~np.isfinite(vals).all(1))[0]) + 1} holds NaN/inf")
+    norms = np.linalg.norm(vals[:, 3:7], axis=1)
+    if (norms < 1e-6).any():
+        raise DataFormatError(f"{path}: pose {int(np.flatnonzero(norms < 1e-6)[0]) + 1} has a zero quaternion")
+    poses = np.tile(np.eye(4), (len(vals), 1, 1))
+    poses[:, :3, 3] = vals[:, :3]
+    poses[:, :3, :3] = Rotation.from_quat(vals[:, 3:7]).as_matrix()
+    return keys, _checked_poses(path, poses)
 
 
 def read_ouster_metadata(path: str | Path, *, max_range: float = 120.0) -> SensorModel:
@@ -350,7 +507,9 @@ def read_ouster_metadata(path: str | Path, *, max_range: float = 120.0) -> Senso
     meta = json.loads(Path(path).read_text())
     beams = meta.get("beam_intrinsics", meta)
     fmt = meta.get("lidar_data_format", meta.get("data_format", {}))
-    cols = int(fmt.get("columns_per_frame", 1024))
+    cols = fmt.get("columns_per_frame", 1024)
+    if isinstance(cols, bool) or not isinstance(cols, int) or not 1 <= cols <= 360 / MIN_AZIMUTH_STEP_DEG:
+        raise ValueError(f"columns_per_frame must be a whole number of columns in [1, 36000], got {cols!r}")
     mode = str(meta.get("config_params", meta).get("lidar_mode", f"{cols}x10"))
     rate = float(mode.split("x")[1]) if "x" in mode else 10.0
     product = meta.get("sensor_info", meta).get("prod_line", "ouster")
@@ -375,10 +534,11 @@ def read_sensor_file(path: str | Path) -> SensorModel:
     if not isinstance(meta, dict):
         raise DataFormatError(f"{path}: a sensor file holds a JSON object")
     try:
-        if "beam_altitude_angles" in meta.get("beam_intrinsics", meta):
+        inner = meta.get("beam_intrinsics", meta)
+        if isinstance(inner, dict) and "beam_altitude_angles" in inner:
             return read_ouster_metadata(path)
         return SensorModel.from_dict(meta)
-    except (KeyError, TypeError, ValueError) as exc:
+    except (KeyError, TypeError, ValueError, AttributeError, OverflowError) as exc:
         raise DataFormatError(
             f"{path}: neither an lwbench sensor.json (name, elevations_deg, azimuth_step_deg, min_range, "
             f"max_range, rate_hz -- or preset) nor an Ouster sensor_metadata.json (beam_altitude_angles): {exc}"

@@ -48,6 +48,7 @@ from lwbench.io import (
     read_point_file,
     read_pose_file,
     read_sensor_file,
+    read_times,
     scan_suffix,
 )
 from lwbench.sensor import SENSOR_PRESETS, SensorModel, get_sensor
@@ -179,7 +180,11 @@ def _choose_sensor(value: str, folder: Path, first: Path, read, rate_hz: float) 
                 f"{first}: {len(scan.points)} points is too few to derive a sensor model from; "
                 "pass --dataset-param sensor=<preset or sensor.json path>"
             )
-        d = derive_sensor(scan.points, ring=scan.ring, rate_hz=rate_hz, name="derived")
+        try:
+            d = derive_sensor(scan.points, ring=scan.ring, rate_hz=rate_hz, name="derived")
+        except ValueError as exc:  # no plausible sensor fits the scan (lwbench.sensor's bounds)
+            raise DataFormatError(f"{first}: no sensor model can be derived from this scan ({exc}); "
+                                  "pass --dataset-param sensor=<preset or sensor.json path>") from None
         return SensorChoice(d.sensor, f"derived from {first.name} ({d.method})", d, first)
     if value.lower() in SENSOR_PRESETS:
         return SensorChoice(get_sensor(value), f"preset {value.lower()}")
@@ -373,7 +378,7 @@ class KittiDataset(_ScanFiles):
         times = self.folder / "times.txt"
         self.times = None
         if times.is_file():
-            stamps = np.loadtxt(times, ndmin=1)
+            stamps = read_times(times)
             self.times = stamps[_rows_for(self.files, len(stamps), times, "kitti")]
 
     def _load_poses(self, path: Path | None) -> np.ndarray | None:

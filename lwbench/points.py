@@ -18,6 +18,7 @@ import struct
 
 import numpy as np
 
+from lwbench.limits import check_count, checked_cloud
 from lwbench.payload import PayloadError
 
 __all__ = ["POINT_ENCODINGS", "pack_points", "unpack_points"]
@@ -42,23 +43,29 @@ def pack_points(points: np.ndarray, encoding: str = "float32", step: float = 0.0
     return _HEAD.pack(1, len(pts)) + _QHEAD.pack(*origin.tolist(), step, width) + q.astype(dtype).tobytes()
 
 
-def unpack_points(body: bytes) -> np.ndarray:
+def unpack_points(body: bytes, codec: str = "points") -> np.ndarray:
+    """Inverse of :func:`pack_points`: finite float32 ``(N, 3)``, or :class:`PayloadError`.
+
+    The point count is checked against the bytes the body holds before anything is allocated,
+    and the decoded coordinates must be finite (a crafted body can hold NaN bit patterns)."""
     try:
         enc, n = _HEAD.unpack_from(body, 0)
         off = _HEAD.size
         if enc == 0:
-            expected = off + 12 * n
-            if len(body) != expected:
-                raise PayloadError(f"point body has {len(body)} bytes, expected {expected}")
-            return np.frombuffer(body, dtype="<f4", offset=off).reshape(n, 3).astype(np.float32)
+            n = check_count(n, "point count", codec=codec, body=len(body) - off, bytes_each=12, exact=True)
+            pts = np.frombuffer(body, dtype="<f4", offset=off).reshape(n, 3).astype(np.float32)
+            return checked_cloud(pts, codec)
         if enc == 1:
             ox, oy, oz, step, width = _QHEAD.unpack_from(body, off)
             off += _QHEAD.size
-            if width not in (2, 4) or len(body) != off + 3 * width * n:
-                raise PayloadError("quantized point body has the wrong size")
+            if width not in (2, 4):
+                raise PayloadError(f"{codec} payload: quantized points of {width} bytes per value")
+            n = check_count(n, "point count", codec=codec, body=len(body) - off, bytes_each=3 * width, exact=True)
+            if not all(np.isfinite([ox, oy, oz, step])) or not step > 0:
+                raise PayloadError(f"{codec} payload: quantization origin or step is not finite and positive")
             q = np.frombuffer(body, dtype="<u2" if width == 2 else "<u4", offset=off)
             pts = q.reshape(n, 3).astype(np.float64) * step + np.array([ox, oy, oz])
-            return pts.astype(np.float32)
+            return checked_cloud(pts, codec)
     except struct.error as exc:
-        raise PayloadError(f"truncated point body: {exc}") from None
-    raise PayloadError(f"unknown point encoding id {enc}")
+        raise PayloadError(f"{codec} payload: truncated point body: {exc}") from None
+    raise PayloadError(f"{codec} payload: unknown point encoding id {enc}")

@@ -4,11 +4,18 @@ pluggy's own ``load_setuptools_entrypoints`` stops at the first plugin that fail
 so one broken third-party package would take the whole tool down. Here each entry point is
 loaded and registered on its own; a failure is recorded (and shown by ``lwbench list``) and the
 rest carry on. ``strict=True`` (CLI ``--strict``, for CI) turns any failure into an error.
+
+``LWBENCH_PLUGINS`` (comma-separated import names) registers modules that are not installed
+packages -- a plugin being written, a test's misbehaving codec -- the same way. A registry
+knows how it was built (:meth:`Registry.recipe`), so that worker processes, which must load the
+same plugins, rebuild it from entry points and module names.
 """
 
 from __future__ import annotations
 
+import importlib
 import importlib.metadata as md
+import os
 import traceback
 from dataclasses import dataclass, field
 from typing import Any
@@ -21,9 +28,11 @@ from lwbench.dataset import Dataset
 from lwbench.errors import PluginError
 from lwbench.metric import FrameMetric, MetricId, SequenceMetric, as_metric_id
 
-__all__ = ["Registry", "PluginFailure", "PluginError", "get_registry", "ENTRY_POINT_GROUP"]
+__all__ = ["Registry", "PluginFailure", "PluginError", "get_registry", "registry_from_recipe", "ENTRY_POINT_GROUP",
+           "PLUGINS_ENV"]
 
 ENTRY_POINT_GROUP = "lwbench"
+PLUGINS_ENV = "LWBENCH_PLUGINS"
 
 
 @dataclass(frozen=True)
@@ -48,9 +57,40 @@ class Registry:
     # release with new code is never served its predecessor's cached numbers.
     plugin_versions: dict[tuple[str, str], str] = field(default_factory=dict)
     failures: list[PluginFailure] = field(default_factory=list)
+    # How this registry was built: whether entry points were loaded, the modules registered by
+    # import name, and whether anything else (an object) was registered -- which another
+    # process cannot rebuild.
+    entry_points: bool = False
+    modules: list[str] = field(default_factory=list)
+    objects: list[str] = field(default_factory=list)
 
     # -- loading ---------------------------------------------------------------------------
+    def recipe(self) -> tuple[bool, tuple[str, ...]] | None:
+        """What another process needs to build the same registry (``None`` if it cannot: a
+        plugin was registered as an object, e.g. a test's ``SimpleNamespace``)."""
+        return None if self.objects else (self.entry_points, tuple(self.modules))
+
+    def register_module(self, module_name: str) -> bool:
+        """Import a module by name and register it as a plugin (False, and a recorded failure,
+        if it cannot be imported or registered)."""
+        try:
+            module = importlib.import_module(module_name)
+        except Exception as exc:  # noqa: BLE001 - the plugin's error, reported like an entry point's
+            self._fail(module_name, module_name, exc)
+            return False
+        version = getattr(module, "__version__", "0")
+        ok = self.register(module, module_name, provider=PLUGINS_ENV, target=module_name, version=str(version),
+                           _by_name=True)
+        if ok:
+            self.modules.append(module_name)
+        return ok
+
+    def load_env_plugins(self) -> None:
+        for name in filter(None, (n.strip() for n in os.environ.get(PLUGINS_ENV, "").split(","))):
+            self.register_module(name)
+
     def load_entry_points(self, group: str = ENTRY_POINT_GROUP) -> None:
+        self.entry_points = True
         for ep in sorted(md.entry_points(group=group), key=lambda e: e.name):
             dist = ep.dist.name if ep.dist is not None else "?"
             version = ep.dist.version if ep.dist is not None else "?"
@@ -59,12 +99,15 @@ class Registry:
             except Exception as exc:  # noqa: BLE001 - any import error is the plugin's, not ours
                 self._fail(ep.name, ep.value, exc)
                 continue
-            self.register(module, ep.name, provider=dist, target=ep.value, version=version)
+            self.register(module, ep.name, provider=dist, target=ep.value, version=version, _by_name=True)
 
     def register(
-        self, plugin: Any, name: str, *, provider: str = "?", target: str = "", version: str = "?"
+        self, plugin: Any, name: str, *, provider: str = "?", target: str = "", version: str = "?",
+        _by_name: bool = False,
     ) -> bool:
         """Register one plugin object and collect what it provides; False if it failed."""
+        if not _by_name and provider == "?":
+            self.objects.append(name)
         try:
             self.pm.register(plugin, name=name)
             self.pm.check_pending()
@@ -199,13 +242,28 @@ def _lookup(table: dict, name: str, what: str, failures: list[PluginFailure]) ->
 
 
 def new_registry(*, load: bool = True, strict: bool = False) -> Registry:
+    """A registry of the installed plugins (entry points, then ``LWBENCH_PLUGINS``)."""
     pm = pluggy.PluginManager(hookspecs.PROJECT)
     pm.add_hookspecs(hookspecs)
     reg = Registry(pm)
     if load:
         reg.load_entry_points()
+        reg.load_env_plugins()
     if strict:
         reg.raise_failures()
+    return reg
+
+
+def registry_from_recipe(recipe: tuple[bool, tuple[str, ...]]) -> Registry:
+    """The registry :meth:`Registry.recipe` describes, built in this process."""
+    entry_points, modules = recipe
+    pm = pluggy.PluginManager(hookspecs.PROJECT)
+    pm.add_hookspecs(hookspecs)
+    reg = Registry(pm)
+    if entry_points:
+        reg.load_entry_points()
+    for name in modules:
+        reg.register_module(name)
     return reg
 
 

@@ -25,7 +25,19 @@ import numpy as np
 
 from lwbench.geometry import spherical, unit_directions
 
-__all__ = ["SensorModel", "RangeImage", "SENSOR_PRESETS", "get_sensor", "register_sensor", "UnknownSensorError"]
+__all__ = [
+    "SensorModel", "RangeImage", "SENSOR_PRESETS", "get_sensor", "register_sensor", "UnknownSensorError",
+    "MAX_BEAMS", "MIN_AZIMUTH_STEP_DEG", "MAX_RAYS", "MAX_RANGE_M",
+]
+
+# What a real spinning LiDAR has, with room: 128 beams is the most sold today (OS1/OS2-128,
+# VLS-128, Pandar128); the finest azimuth step is ~0.1 deg (VLP-16 at 5 Hz) -- a tenth of it
+# is allowed; a grid of 4 Mi cells is 16x an OS1-128 at 2,048 columns.
+MAX_BEAMS = 256
+MIN_AZIMUTH_STEP_DEG = 0.01
+MAX_RAYS = 1 << 22
+MAX_RANGE_M = 10_000.0
+MAX_RATE_HZ = 1_000.0
 
 
 class UnknownSensorError(LookupError):
@@ -65,15 +77,34 @@ class SensorModel:
     _mid: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        elev = tuple(float(e) for e in sorted(self.elevations_deg))
-        if len(elev) < 1:
-            raise ValueError("a sensor needs at least one beam")
-        if not 0 < self.azimuth_step_deg <= 360:
-            raise ValueError(f"azimuth step must be in (0, 360] degrees, got {self.azimuth_step_deg}")
-        if not 0 <= self.min_range < self.max_range:
-            raise ValueError(f"need 0 <= min_range < max_range, got {self.min_range}, {self.max_range}")
-        if self.rate_hz <= 0:
-            raise ValueError(f"rate must be positive, got {self.rate_hz}")
+        # Bounds that say what a real sensor has, checked here -- where every model is built,
+        # from a preset, a sensor.json, an Ouster file or a payload -- because every codec and
+        # metric allocates a (beams x columns) image from them: a 1e-7 degree step asked a
+        # metric for 215 GiB, NaN elevations sorted into nonsense.
+        if not isinstance(self.name, str) or len(self.name) > 200:
+            raise ValueError("a sensor's name is a string of at most 200 characters")
+        if not 1 <= len(self.elevations_deg) <= MAX_BEAMS:
+            raise ValueError(f"a sensor has 1 to {MAX_BEAMS} beams, got {len(self.elevations_deg)}")
+        elev = tuple(float(e) for e in self.elevations_deg)
+        if not all(math.isfinite(e) and -90.0 <= e <= 90.0 for e in elev):
+            raise ValueError("beam elevations must be finite angles in [-90, 90] degrees")
+        elev = tuple(sorted(elev))
+        step = float(self.azimuth_step_deg)
+        if not MIN_AZIMUTH_STEP_DEG <= step <= 360:
+            raise ValueError(f"azimuth step must be in [{MIN_AZIMUTH_STEP_DEG}, 360] degrees, got {step}")
+        if not (math.isfinite(self.min_range) and math.isfinite(self.max_range)
+                and 0 <= self.min_range < self.max_range <= MAX_RANGE_M):
+            raise ValueError(
+                f"need 0 <= min_range < max_range <= {MAX_RANGE_M:g} m, got {self.min_range}, {self.max_range}"
+            )
+        if not (math.isfinite(self.rate_hz) and 0 < self.rate_hz <= MAX_RATE_HZ):
+            raise ValueError(f"rate must be in (0, {MAX_RATE_HZ:g}] Hz, got {self.rate_hz}")
+        n_rays = len(elev) * int(round(360.0 / step))
+        if n_rays > MAX_RAYS:
+            raise ValueError(
+                f"a grid of {len(elev)} beams x {int(round(360.0 / step))} columns ({n_rays:,} cells) is more "
+                f"than {MAX_RAYS:,}: no real sensor has it"
+            )
         object.__setattr__(self, "elevations_deg", elev)
         e = np.radians(np.asarray(elev))
         object.__setattr__(self, "_mid", (e[1:] + e[:-1]) / 2)
@@ -173,11 +204,23 @@ class SensorModel:
 
     @classmethod
     def from_dict(cls, d: dict) -> SensorModel:
+        """Inverse of :meth:`to_dict`; ``ValueError`` / ``KeyError`` / ``TypeError`` for anything
+        that is not a plausible sensor (see the bounds checked on construction)."""
+        if not isinstance(d, dict):
+            raise TypeError(f"a sensor description is an object, got {type(d).__name__}")
         if "preset" in d:
             return get_sensor(d["preset"])
+        table = d["elevations_deg"]
+        if not isinstance(table, (list, tuple)) or not 1 <= len(table) <= MAX_BEAMS:
+            raise ValueError(f"a sensor has 1 to {MAX_BEAMS} beams: elevations_deg lists their angles")
+        if not all(isinstance(e, (int, float)) and not isinstance(e, bool) for e in table):
+            raise TypeError("elevations_deg must hold numbers")
+        for key in ("azimuth_step_deg", "min_range", "max_range", "rate_hz"):
+            if isinstance(d[key], bool) or not isinstance(d[key], (int, float)):
+                raise TypeError(f"{key} must be a number")
         return cls(
             name=str(d["name"]),
-            elevations_deg=tuple(float(e) for e in d["elevations_deg"]),
+            elevations_deg=tuple(float(e) for e in table),
             azimuth_step_deg=float(d["azimuth_step_deg"]),
             min_range=float(d["min_range"]),
             max_range=float(d["max_range"]),
@@ -291,6 +334,8 @@ def register_sensor(sensor: SensorModel) -> str:
 
 
 def get_sensor(name: str) -> SensorModel:
+    if not isinstance(name, str):
+        raise TypeError(f"a sensor preset is named by a string, got {type(name).__name__}")
     try:
         return SENSOR_PRESETS[name.lower()]
     except KeyError:

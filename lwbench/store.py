@@ -212,6 +212,23 @@ def is_results_store(path: str | Path) -> bool:
         conn.close()
 
 
+def _empty_sqlite(path: Path) -> bool:
+    """An SQLite database with no table at all (a store being created by another process)."""
+    with open(path, "rb") as fh:
+        if fh.read(16) != b"SQLite format 3\x00":
+            return False
+    try:
+        conn = _connect_readonly(path)
+    except sqlite3.Error:
+        return False
+    try:
+        return conn.execute("SELECT COUNT(*) FROM sqlite_master").fetchone()[0] == 0
+    except sqlite3.DatabaseError:
+        return False
+    finally:
+        conn.close()
+
+
 class ResultStore:
     """Append-mostly SQLite store. Safe to read while a run writes (WAL).
 
@@ -230,6 +247,10 @@ class ResultStore:
         exists = self.path.is_file() and self.path.stat().st_size > 0
         if readonly and not exists:
             raise StoreError(f"no results store at {self.path}")
+        if exists and not readonly and _empty_sqlite(self.path):
+            # Another run is creating this store at this moment (its tables are not committed
+            # yet): two runs started together on a new store both initialise it, idempotently.
+            exists = False
         if exists and not is_results_store(self.path):
             raise StoreError(
                 f"{self.path} is not an lwbench results store"

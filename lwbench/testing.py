@@ -12,8 +12,9 @@ is exactly reproducible from its seed:
 
 And the conformance kit a third-party plugin runs in its own tests, as scikit-learn ships
 ``check_estimator``: :func:`check_codec` / :func:`check_dataset` (or :func:`codec_checks` /
-:func:`dataset_checks` for one pytest case per check). This repository's own conformance tests
-call the same functions over every registered plugin.
+:func:`dataset_checks` for one pytest case per check). Its ``fuzz`` check decodes a few hundred
+crafted payloads out of process (:mod:`lwbench.fuzz`): only ``PayloadError`` may escape.
+This repository's own conformance tests call the same functions over every registered plugin.
 """
 
 from __future__ import annotations
@@ -29,6 +30,8 @@ from lwbench.sensor import SensorModel, get_sensor
 __all__ = [
     "ROOM_HALF_EXTENT",
     "ConformanceError",
+    "FUZZ_CASES",
+    "FUZZ_SECONDS",
     "check_codec",
     "check_dataset",
     "check_frames",
@@ -43,6 +46,11 @@ __all__ = [
     "tunnel_scan",
     "with_exact_duplicates",
 ]
+
+#: The conformance kit's fuzz check: at most this many crafted payloads, for at most this long
+#: (tools/fuzz_codecs.py runs the long campaigns).
+FUZZ_CASES = 400
+FUZZ_SECONDS = 3.0
 
 # A 6 m x 4 m x 2.4 m room centred on the sensor: walls, floor and ceiling; every ray hits.
 ROOM_HALF_EXTENT = (3.0, 2.0, 1.2)
@@ -350,7 +358,17 @@ def codec_checks(codec_cls, params: dict | None = None) -> list[tuple[str, objec
                 if not values or nan:
                     _fail("scored", f"{label}: metric {metric.name} gave {'NaN for ' + str(nan) if nan else 'nothing'}")
 
-    checks = [declared, payloads, deterministic, corrupt, empty_scan, selection, scored]
+    def fuzz() -> None:
+        # Crafted payloads (CRC recomputed) decoded out of process: only PayloadError may escape,
+        # within a second of CPU and 512 MB. Bounded (a few seconds), so it fits any CI.
+        from lwbench.fuzz import fuzz_codec, shared_server
+
+        report = fuzz_codec(codec_cls, params, cases=FUZZ_CASES, seconds=FUZZ_SECONDS, server=shared_server())
+        if report.other:
+            worst = "; ".join(f"{v}: {m[:120]}" for v, m, _ in report.failures[:3])
+            _fail("fuzz", f"{report.summary()} -- e.g. {worst}")
+
+    checks = [declared, payloads, deterministic, corrupt, empty_scan, selection, scored, fuzz]
     return [(f.__name__, f) for f in checks]
 
 

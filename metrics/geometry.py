@@ -19,7 +19,7 @@ import math
 
 import numpy as np
 
-from lwbench import HIGHER, LOWER, Evaluation, FrameMetric, MetricId, Param, import_open3d
+from lwbench import HIGHER, LOWER, Evaluation, FrameMetric, MetricId, Param, import_open3d, thread_budget
 
 NORMAL_NEIGHBOURS = 12
 
@@ -60,8 +60,8 @@ class GeometryMetric(FrameMetric):
 
         tree_p = ev.cached("original_kdtree", lambda: cKDTree(p))
         normals = ev.cached("original_normals", lambda: _normals(p))
-        d_pq, j_pq = cKDTree(q).query(p, workers=-1)
-        d_qp, i_qp = tree_p.query(q, workers=-1)
+        d_pq, j_pq = cKDTree(q).query(p, workers=thread_budget())
+        d_qp, i_qp = tree_p.query(q, workers=thread_budget())
         # Point-to-plane errors, both along the original's normal at the original point.
         e2_pq = np.einsum("ij,ij->i", p - q[j_pq], normals) ** 2
         e2_qp = np.einsum("ij,ij->i", q - p[i_qp], normals[i_qp]) ** 2

@@ -42,7 +42,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from lwbench import HIGHER, LOWER, Evaluation, FrameMetric, MetricId, Param, SensorModel
+from lwbench import HIGHER, LOWER, Evaluation, FrameMetric, MetricId, Param, SensorModel, thread_budget
 from lwbench.geometry import spherical
 
 if TYPE_CHECKING:
@@ -205,7 +205,7 @@ def match_returns(
     bound = float(np.nextafter(tolerance, np.inf))
     if p_tree is None:
         p_tree = _tree(p_coords[p_idx], sensor)
-    dist, _ = p_tree.query(q_coords[q_idx], k=1, p=np.inf, distance_upper_bound=bound, workers=-1)
+    dist, _ = p_tree.query(q_coords[q_idx], k=1, p=np.inf, distance_upper_bound=bound, workers=thread_budget())
     near_p[q_idx] = np.isfinite(dist)
     pa, qb = _exact_pairs(np.asarray(p_points)[p_idx], np.asarray(q_points)[q_idx])
     partner[p_idx[pa]] = q_idx[qb]
@@ -215,7 +215,7 @@ def match_returns(
         return partner, near_p
     k = min(MAX_CANDIDATES, len(free_q))
     dist, j = _tree(q_coords[free_q], sensor).query(
-        p_coords[free_p], k=k, p=np.inf, distance_upper_bound=bound, workers=-1
+        p_coords[free_p], k=k, p=np.inf, distance_upper_bound=bound, workers=thread_budget()
     )
     dist, j = dist.reshape(len(free_p), k), j.reshape(len(free_p), k)
     ok = np.isfinite(dist)

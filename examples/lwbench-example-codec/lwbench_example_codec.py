@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lwbench import Frame, Param, PayloadError, RepresentationCodec, hookimpl
+from lwbench import Frame, Param, PayloadError, RepresentationCodec, check_count, checked_cloud, hookimpl
 
 
 class HalfFloatCodec(RepresentationCodec):
@@ -26,12 +26,16 @@ class HalfFloatCodec(RepresentationCodec):
 
     def decode(self, data: bytes) -> np.ndarray:
         payload = self.read_payload(data)
-        n = self.meta_field(payload, "n", int)
-        offset = np.asarray(self.meta_field(payload, "offset", list), dtype=np.float64)
-        if len(payload.body) != 6 * n or offset.shape != (3,):
-            raise PayloadError("half: body size does not match the point count")
-        pts = np.frombuffer(payload.body, dtype="<f2").reshape(n, 3).astype(np.float64) + offset
-        return pts.astype(np.float32)
+        # Every count read from a payload is checked before anything is allocated for it, and
+        # the decoded cloud must be finite (the conformance kit fuzzes decoders with crafted
+        # payloads: only PayloadError may escape).
+        n = check_count(self.meta_field(payload, "n", int), "point count", codec=self.name,
+                        body=len(payload.body), bytes_each=6, exact=True)
+        offset = self.meta_field(payload, "offset", list)
+        if len(offset) != 3 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in offset):
+            raise PayloadError("half: the offset is not three numbers")
+        pts = np.frombuffer(payload.body, dtype="<f2").reshape(n, 3).astype(np.float64) + np.asarray(offset, float)
+        return checked_cloud(pts, self.name)
 
 
 @hookimpl

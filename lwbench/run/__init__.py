@@ -10,7 +10,7 @@ leaderboard (:mod:`lwbench.leaderboard`) reads what they stored.
 """
 
 from .evaluate import Evaluator, FrameResult
-from .execute import FrameTask, LocalExecutor, Worker
+from .execute import DEFAULT_TIMEOUT_S, FrameTask, InProcessExecutor, LocalExecutor, ProcessExecutor, Worker
 from .plan import (
     CodecConfig,
     DatasetSpec,
@@ -20,6 +20,7 @@ from .plan import (
     parse_assignments,
     parse_sweeps,
     plan_run,
+    preflight,
     resolve_dataset,
 )
 from .record import Provenance, RowFactory
@@ -28,6 +29,9 @@ from .sequence import SequenceStage
 
 __all__ = [
     "CodecConfig",
+    "DEFAULT_TIMEOUT_S",
+    "InProcessExecutor",
+    "ProcessExecutor",
     "DatasetSpec",
     "Evaluator",
     "FrameResult",
@@ -46,5 +50,6 @@ __all__ = [
     "parse_assignments",
     "parse_sweeps",
     "plan_run",
+    "preflight",
     "resolve_dataset",
 ]

@@ -17,7 +17,7 @@ into the steady-state metrics. For selection codecs ``encode_ms`` is the whole e
 from __future__ import annotations
 
 import traceback
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -136,11 +136,16 @@ class Evaluator:
         self, frame: Frame, configs: Sequence[CodecConfig], *, keep_decoded: bool = False
     ) -> list[FrameResult]:
         """Every configuration on one frame; the frame's k-d trees and normals are shared."""
+        return list(self.evaluate_each(frame, configs, keep_decoded=keep_decoded))
+
+    def evaluate_each(
+        self, frame: Frame, configs: Sequence[CodecConfig], *, keep_decoded: bool = False
+    ) -> Iterator[FrameResult]:
+        """:meth:`evaluate`, one result at a time (a worker process reports each as it is done,
+        so a configuration that hangs or kills the process loses only its own result)."""
         shared: dict[str, Any] = {}
-        out = []
         for config in configs:
-            out.append(self._one(frame, config, shared, keep_decoded))
-        return out
+            yield self._one(frame, config, shared, keep_decoded)
 
     def _one(self, frame: Frame, config: CodecConfig, shared: dict[str, Any], keep_decoded: bool) -> FrameResult:
         extra: dict[str, Any] = {}

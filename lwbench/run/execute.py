@@ -1,32 +1,71 @@
-"""Where evaluations run: in this process, or in a pool of worker processes.
+"""Where evaluations run: in this process, or in isolated worker processes.
 
-An executor turns :class:`FrameTask` values into lists of :class:`~.evaluate.FrameResult` and
+An executor turns :class:`FrameTask` values into :class:`~.evaluate.FrameResult` values and
 yields them as they complete; it never touches the store (the driver alone records), which is
-what lets another executor (a cluster) slot in. Each worker process builds its registry, its
-:class:`~.evaluate.Evaluator` and its datasets once, at start-up, not per task.
+what lets another executor (a cluster, :mod:`.ray_executor`) slot in.
 
-Threads: worker processes are started with ``spawn`` (forking after torch has started its thread
-pool can hang torch calls in the child) and with the BLAS/OpenMP thread count set so that
-workers x threads = cores, before any numerical library is imported in the worker.
+:class:`ProcessExecutor` is what ``lwbench run`` uses: every evaluation runs in a worker
+process, so that one plugin cannot take the run down with it --
+
+- **per-call timeout**: a worker reports when it starts each (frame, configuration); one that
+  takes longer than ``timeout_s`` is killed, its evaluation recorded as failed, the rest of its
+  task handed to a fresh worker;
+- **dead workers are replaced**: a worker killed by a segfault or ``os._exit`` costs the
+  evaluation it was running one failure row (saying how it died), not the run;
+- **memory ceiling**: each worker's data segment is capped (``RLIMIT_DATA``), so a memory bomb
+  fails with ``MemoryError`` (a failure row; the worker is then recycled) instead of taking
+  the machine; a native library's failed allocation aborts the worker, which is replaced;
+- **no worker outlives the run**: workers die with their parent (``PR_SET_PDEATHSIG`` and a
+  watchdog thread), also when the driver is SIGKILLed;
+- **start-up once per worker, threads per worker**: a worker builds its registry, evaluator and
+  datasets once, and is started with ``cores // workers`` threads for every numerical library
+  (:mod:`lwbench.parallel`), so two workers on two cores do not fight over four threads.
+
+Workers are started with ``spawn`` (forking after torch has started its thread pool can hang
+torch calls in the child), and rebuild the driver's registry from its recipe
+(:meth:`lwbench.registry.Registry.recipe`).
 """
 
 from __future__ import annotations
 
+import contextlib
+import importlib
 import os
-from collections.abc import Iterable, Iterator
-from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import dataclass
+import signal
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field
 from multiprocessing import get_context
+from multiprocessing.connection import wait
 
 from lwbench.dataset import Dataset
-from lwbench.registry import Registry, get_registry
+from lwbench.errors import LwbenchError, MissingDependencyError, WorkerError
+from lwbench.parallel import thread_env
+from lwbench.registry import Registry, registry_from_recipe
 
 from .evaluate import Evaluator, FrameResult
 from .plan import CodecConfig, DatasetSpec
 
-__all__ = ["FrameTask", "Worker", "LocalExecutor"]
+__all__ = [
+    "DEFAULT_TIMEOUT_S",
+    "FrameTask",
+    "InProcessExecutor",
+    "LocalExecutor",
+    "ProcessExecutor",
+    "Worker",
+    "default_memory_mb",
+]
 
-_THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS")
+#: Per-call timeout (s) of ``lwbench run``: over ten times the slowest built-in codec at its defaults
+#: on the largest real sample (see docs/hostile.md), so only a hang reaches it.
+DEFAULT_TIMEOUT_S = 3600.0
+_START_TIMEOUT_S = 300.0  # a worker's imports on a loaded machine
+#: Modules a worker imports while it starts (the metrics' Open3D and SciPy, torch for the learned
+#: codecs), so that a per-call timeout measures the evaluation, not the imports.
+PRELOAD = ("open3d", "scipy.spatial", "torch")
+_MEMORY_MARKERS = ("MemoryError", "can't allocate memory", "Cannot allocate memory")
 
 
 @dataclass(frozen=True)
@@ -48,6 +87,11 @@ class Worker:
         self.datasets: dict[str, Dataset] = dict(datasets or {})
 
     def run(self, task: FrameTask) -> list[FrameResult]:
+        return list(self.run_each(task))
+
+    def run_each(self, task: FrameTask, on_start: Callable[[CodecConfig], None] | None = None
+                 ) -> Iterator[FrameResult]:
+        """Each configuration's result as it is done; ``on_start`` is told before each begins."""
         try:
             dataset = self.datasets.get(task.dataset.label)
             if dataset is None:
@@ -55,44 +99,297 @@ class Worker:
             frame = dataset[task.frame]
         except Exception as exc:  # noqa: BLE001 - a bad scan fails its rows, not the run
             err = RuntimeError(f"loading frame {task.frame}: {type(exc).__name__}: {exc}")
-            return [FrameResult.failure(task.frame, c, err) for c in task.configs]
-        return self.evaluator.evaluate(frame, task.configs, keep_decoded=task.keep_decoded)
+            yield from (FrameResult.failure(task.frame, c, err) for c in task.configs)
+            return
+        each = self.evaluator.evaluate_each(frame, task.configs, keep_decoded=task.keep_decoded)
+        for config in task.configs:
+            if on_start is not None:
+                on_start(config)
+            yield next(each)
 
 
-_WORKER: Worker | None = None
+class InProcessExecutor:
+    """Evaluate in this process, in order (``--in-process``: no isolation, for debugging and
+    for registries built from objects, which a worker process cannot rebuild)."""
+
+    def __init__(self, worker: Worker) -> None:
+        self.worker = worker
+
+    def map(self, tasks: Iterable[FrameTask]) -> Iterator[FrameResult]:
+        for task in tasks:
+            yield from self.worker.run_each(task)
+
+    def close(self) -> None:
+        pass
+
+    def __enter__(self) -> InProcessExecutor:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
 
-def _init_worker(threads: int, metric_params: dict[str, dict]) -> None:
-    global _WORKER
-    for var in _THREAD_VARS:
-        os.environ[var] = str(threads)
-    _WORKER = Worker(get_registry(), metric_params)
+def default_memory_mb(workers: int) -> int:
+    """A worker's memory ceiling by default: 80 % of the machine's memory, shared by the workers."""
+    try:
+        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**20
+    except (ValueError, OSError, AttributeError):
+        return 0
+    return int(0.8 * total / max(1, workers))
 
 
-def _run_task(task: FrameTask) -> list[FrameResult]:
-    assert _WORKER is not None, "worker process was not initialised"
-    return _WORKER.run(task)
+# -- the worker process ---------------------------------------------------------------------------
+def _status_mb(key: str) -> float:
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith(key + ":"):
+                    return int(line.split()[1]) / 1024
+    except OSError:
+        pass
+    return 0.0
+
+
+def _die_with_parent(parent: int) -> None:
+    """End this process when the driver ends, however it ends (SIGKILL included)."""
+    with contextlib.suppress(Exception):  # Linux only; the watchdog below covers the rest
+        import ctypes
+
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    if os.getppid() != parent:
+        os._exit(1)
+
+    def watch() -> None:
+        while True:
+            time.sleep(0.5)
+            if os.getppid() != parent:
+                os._exit(1)
+
+    threading.Thread(target=watch, name="lwbench-parent-watch", daemon=True).start()
+
+
+def _worker_main(conn, recipe, metric_params: dict, memory_mb: int, parent: int, preload: tuple[str, ...]) -> None:
+    import resource
+
+    _die_with_parent(parent)
+    with contextlib.suppress(ValueError, OSError):
+        resource.setrlimit(resource.RLIMIT_CORE, (0, 0))  # a crashing plugin is reported, not dumped
+    worker = Worker(registry_from_recipe(recipe), metric_params)
+    for module in preload:  # start-up once per worker: not inside the first evaluation's timeout
+        with contextlib.suppress(Exception):
+            if module == "open3d":
+                from lwbench.deps import import_open3d  # with the libusb it needs
+
+                import_open3d()
+            else:
+                importlib.import_module(module)
+    if memory_mb and (data := _status_mb("VmData")):
+        ceiling = int((data + memory_mb) * 2**20)
+        with contextlib.suppress(ValueError, OSError):
+            resource.setrlimit(resource.RLIMIT_DATA, (ceiling, resource.getrlimit(resource.RLIMIT_DATA)[1]))
+    conn.send(("ready", os.getpid()))
+    while True:
+        try:
+            task = conn.recv()
+        except (EOFError, OSError):
+            return
+        if task is None:
+            return
+        recycle = False
+        try:
+            for result in worker.run_each(task, on_start=lambda c: conn.send(("start", c.key))):
+                conn.send(("result", result))
+                recycle = recycle or any(m in (result.error or "") for m in _MEMORY_MARKERS)
+        except MissingDependencyError as exc:  # the machine, not a codec: the driver stops the run
+            conn.send(("fatal", str(exc)))
+            return
+        conn.send(("done", recycle))
+        if recycle:  # what a leak left behind would fail every later evaluation: start afresh
+            return
+
+
+# -- the driver's side ----------------------------------------------------------------------------
+@dataclass
+class _Slot:
+    proc: object
+    conn: object
+    task: FrameTask | None = None
+    remaining: list[CodecConfig] = field(default_factory=list)
+    current: CodecConfig | None = None
+    deadline: float | None = None
+
+
+def _how_it_died(code: int | None) -> str:
+    if code is not None and code < 0:
+        try:
+            name = signal.Signals(-code).name
+        except ValueError:
+            name = f"signal {-code}"
+        hint = {"SIGSEGV": " (a segmentation fault)", "SIGABRT": " (native code aborted: out of memory?)",
+                "SIGKILL": " (killed: out of memory?)"}.get(name, "")
+        return f"was killed by {name}{hint}"
+    return f"exited with status {code}"
+
+
+class ProcessExecutor:
+    """Evaluations in ``workers`` isolated processes (see the module docstring)."""
+
+    def __init__(self, recipe, metric_params: dict | None = None, *, workers: int = 1,
+                 timeout_s: float | None = DEFAULT_TIMEOUT_S, memory_mb: int | None = None,
+                 threads: int | None = None, preload: tuple[str, ...] = PRELOAD) -> None:
+        if recipe is None:
+            raise LwbenchError(
+                "plugins registered as Python objects cannot be loaded in worker processes: run in process "
+                "(--in-process / isolate=False, one worker) or register them as modules (LWBENCH_PLUGINS)"
+            )
+        self.recipe = recipe
+        self.metric_params = metric_params or {}
+        self.workers = max(1, workers)
+        self.timeout_s = timeout_s
+        self.memory_mb = default_memory_mb(self.workers) if memory_mb is None else memory_mb
+        self.threads = threads or max(1, (os.cpu_count() or 1) // self.workers)
+        self.preload = tuple(preload)
+        self._slots: list[_Slot] = []
+        self._ctx = get_context("spawn")
+        self.started = 0  # worker processes started (replacements included)
+
+    # -- workers ----------------------------------------------------------------------------
+    def _spawn(self) -> _Slot:
+        parent, child = self._ctx.Pipe()
+        proc = self._ctx.Process(
+            target=_worker_main,
+            args=(child, self.recipe, self.metric_params, self.memory_mb, os.getpid(), self.preload),
+            daemon=True, name="lwbench-worker",
+        )
+        with thread_env(self.threads):
+            proc.start()
+        child.close()
+        self.started += 1
+        return _Slot(proc, parent)
+
+    def _await_ready(self, slots: list[_Slot]) -> None:
+        deadline = time.monotonic() + _START_TIMEOUT_S
+        for slot in slots:
+            try:
+                if not slot.conn.poll(max(0.0, deadline - time.monotonic())):
+                    raise LwbenchError(f"a worker process did not start within {_START_TIMEOUT_S:g} s")
+                slot.conn.recv()
+            except (EOFError, OSError):
+                slot.proc.join(5)
+                raise LwbenchError(
+                    f"a worker process died while starting ({_how_it_died(slot.proc.exitcode)}): a plugin that "
+                    "crashes on import? `lwbench list` shows the plugins"
+                ) from None
+
+    def _ensure(self, n: int) -> None:
+        new = [self._spawn() for _ in range(n - len(self._slots))]
+        self._await_ready(new)
+        self._slots += new
+
+    def _replace(self, slot: _Slot) -> None:
+        self._stop(slot, kill=True)
+        fresh = self._spawn()
+        self._await_ready([fresh])
+        self._slots[self._slots.index(slot)] = fresh
+
+    @staticmethod
+    def _stop(slot: _Slot, kill: bool = False) -> None:
+        if slot.proc.is_alive():
+            if kill:
+                slot.proc.kill()
+            else:
+                with contextlib.suppress(OSError, BrokenPipeError):
+                    slot.conn.send(None)
+        slot.proc.join(5)
+        if slot.proc.is_alive():
+            slot.proc.kill()
+            slot.proc.join(5)
+        slot.conn.close()
+
+    def close(self) -> None:
+        """Stop every worker (killed if busy): none outlives the run."""
+        for slot in self._slots:
+            self._stop(slot, kill=slot.task is not None)
+        self._slots = []
+
+    def __enter__(self) -> ProcessExecutor:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # -- tasks ------------------------------------------------------------------------------
+    def _assign(self, slot: _Slot, task: FrameTask) -> None:
+        slot.task, slot.remaining, slot.current, slot.deadline = task, list(task.configs), None, None
+        slot.conn.send(task)
+
+    def _lost(self, slot: _Slot, why: str, queue: deque) -> list[FrameResult]:
+        """The slot's worker is gone: its current evaluation fails with ``why``, the rest of its
+        task goes back to the front of the queue, and the worker is replaced."""
+        task = slot.task
+        blamed = [slot.current] if slot.current is not None else list(slot.remaining)
+        failed = [FrameResult.failure(task.frame, c, WorkerError(why), {"isolation": why}) for c in blamed]
+        rest = tuple(c for c in slot.remaining if c not in blamed)
+        if rest:
+            queue.appendleft(FrameTask(task.dataset, task.frame, rest, task.keep_decoded))
+        slot.task = None
+        self._replace(slot)
+        return failed
+
+    def map(self, tasks: Iterable[FrameTask]) -> Iterator[FrameResult]:
+        queue = deque(tasks)
+        if not queue:
+            return
+        self._ensure(min(self.workers, len(queue)))
+        by_key = {c.key: c for t in queue for c in t.configs}
+        while queue or any(s.task is not None for s in self._slots):
+            for slot in self._slots:
+                if slot.task is None and queue:
+                    self._assign(slot, queue.popleft())
+            busy = [s for s in self._slots if s.task is not None]
+            now = time.monotonic()
+            deadlines = [s.deadline - now for s in busy if s.deadline is not None]
+            wait([s.conn for s in busy] + [s.proc.sentinel for s in busy],
+                 timeout=min([1.0, *deadlines]) if deadlines else 1.0)
+            for slot in busy:
+                died = False
+                try:
+                    while slot.task is not None and slot.conn.poll(0):
+                        kind, *payload = slot.conn.recv()
+                        if kind == "start":
+                            slot.current = by_key[payload[0]]
+                            slot.deadline = None if self.timeout_s is None else time.monotonic() + self.timeout_s
+                        elif kind == "result":
+                            result = payload[0]
+                            slot.remaining = [c for c in slot.remaining if c.key != result.config.key]
+                            slot.current, slot.deadline = None, None
+                            yield result
+                        elif kind == "fatal":
+                            raise MissingDependencyError(payload[0])
+                        elif kind == "done":
+                            slot.task = None
+                            if payload[0]:  # a memory failure: the worker recycles itself
+                                self._replace(slot)
+                except (EOFError, OSError):
+                    died = True
+                if slot.task is None:
+                    continue
+                if died or not slot.proc.is_alive():
+                    slot.proc.join(5)
+                    why = f"the worker process {_how_it_died(slot.proc.exitcode)} during this evaluation"
+                    yield from self._lost(slot, why, queue)
+                elif slot.deadline is not None and time.monotonic() > slot.deadline:
+                    why = f"timed out after {self.timeout_s:g} s (the worker was killed and replaced; --timeout)"
+                    yield from self._lost(slot, why, queue)
 
 
 class LocalExecutor:
-    """``workers=1``: evaluate in this process, in order; more: a spawned process pool."""
+    """This machine's executor: in process (``isolate=False`` and one worker), else a
+    :class:`ProcessExecutor` of ``workers`` processes."""
 
-    def __init__(self, worker: Worker, workers: int = 1, metric_params: dict[str, dict] | None = None) -> None:
-        self.worker = worker
-        self.workers = max(1, workers)
-        self.metric_params = metric_params or {}
-
-    def map(self, tasks: Iterable[FrameTask]) -> Iterator[list[FrameResult]]:
-        tasks = list(tasks)
-        if self.workers == 1 or len(tasks) <= 1:
-            for task in tasks:
-                yield self.worker.run(task)
-            return
-        threads = max(1, (os.cpu_count() or 1) // self.workers)
-        with ProcessPoolExecutor(
-            self.workers, mp_context=get_context("spawn"), initializer=_init_worker,
-            initargs=(threads, self.metric_params),
-        ) as pool:
-            futures = [pool.submit(_run_task, t) for t in tasks]
-            for fut in as_completed(futures):
-                yield fut.result()
+    def __new__(cls, worker: Worker, workers: int = 1, metric_params: dict | None = None, *, isolate: bool = False,
+                timeout_s: float | None = DEFAULT_TIMEOUT_S, memory_mb: int | None = None):
+        if workers <= 1 and not isolate:
+            return InProcessExecutor(worker)
+        return ProcessExecutor(worker.registry.recipe(), metric_params, workers=workers, timeout_s=timeout_s,
+                               memory_mb=memory_mb)

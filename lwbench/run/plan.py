@@ -26,7 +26,7 @@ from typing import Any
 
 from lwbench.codec import Codec
 from lwbench.dataset import Dataset
-from lwbench.errors import DataFormatError, ParameterError, PluginError
+from lwbench.errors import DataFormatError, LwbenchError, ParameterError, PluginError
 from lwbench.params import Param, config_label, resolve_params
 from lwbench.registry import Registry
 from lwbench.store import canonical_json
@@ -40,6 +40,7 @@ __all__ = [
     "parse_assignments",
     "parse_sweeps",
     "plan_run",
+    "preflight",
     "resolve_dataset",
 ]
 
@@ -208,3 +209,35 @@ def plan_run(
     metric_params = {k: dict(v) for k, v in (metric_params or {}).items()}
     registry.check_metric_params(metric_params)
     return RunPlan(spec, tuple(_unique(configs)), frames, seed, metric_params, sequence_metrics)
+
+
+def preflight(registry: Registry, plan: RunPlan, *, local_devices: bool = True) -> Dataset:
+    """Check what can be checked before a run writes anything, and return the built dataset.
+
+    A dataset that cannot be opened, has no frames, or whose first scan (and so its sensor
+    model) cannot be read, and a device no codec could use here (``vsgp.device=cuda:7`` on a
+    one-GPU machine, which failed every row later) are :class:`~lwbench.errors.LwbenchError`
+    now: the CLI prints one line, exits 2 and never creates the store. ``local_devices=False``
+    (a cluster executor) leaves devices to the cluster.
+    """
+    if local_devices:
+        from lwbench.device import resolve_device
+
+        for config in plan.configs:
+            device = config.params.get("device")
+            if isinstance(device, str) and device not in ("auto", "cpu"):
+                try:
+                    resolve_device(device)
+                except ParameterError as exc:
+                    raise ParameterError(f"{config.name}.device={device}: {exc}") from None
+    dataset = plan.dataset.build(registry)
+    indices = plan.frame_indices(dataset)
+    if not indices:
+        raise DataFormatError(f"dataset {plan.dataset.label} has no frames")
+    try:
+        dataset[indices[0]]
+    except LwbenchError:
+        raise
+    except (ValueError, OSError) as exc:
+        raise DataFormatError(f"{plan.dataset.label}: frame {indices[0]} cannot be read ({exc})") from None
+    return dataset

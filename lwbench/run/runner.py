@@ -12,11 +12,13 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+from lwbench.dataset import Dataset
+from lwbench.errors import ParameterError
 from lwbench.registry import Registry, get_registry
 from lwbench.store import ResultRow, ResultStore
 
-from .evaluate import Evaluator
-from .execute import FrameTask, LocalExecutor, Worker
+from .evaluate import Evaluator, FrameResult
+from .execute import DEFAULT_TIMEOUT_S, PRELOAD, FrameTask, InProcessExecutor, ProcessExecutor, Worker
 from .plan import CodecConfig, RunPlan
 from .record import Provenance, RowFactory, record_frame, record_original
 from .sequence import SequenceStage
@@ -54,7 +56,18 @@ class Runner:
         workers: int = 1,
         retry_failed: bool = False,
         force: bool = False,
+        isolate: bool = False,
+        timeout_s: float | None = DEFAULT_TIMEOUT_S,
+        memory_mb: int | None = None,
+        executor: str = "local",
+        address: str | None = None,
+        dataset: Dataset | None = None,
     ) -> None:
+        """``isolate`` runs every evaluation in worker processes (``lwbench run`` does by
+        default; more than one worker always does) with a per-call ``timeout_s`` and a memory
+        ceiling of ``memory_mb`` per worker (default: 80 % of the machine's memory shared by
+        the workers). ``executor="ray"`` sends the evaluations to a Ray cluster at ``address``
+        (a local one when ``None``), as ``workers`` concurrent tasks at most."""
         self.store = store
         self.plan = plan
         self.configs: list[CodecConfig] = list(plan.configs)
@@ -62,7 +75,19 @@ class Runner:
         self.workers = max(1, workers)
         self.retry_failed = retry_failed
         self.force = force
-        self.dataset = plan.dataset.build(self.registry)
+        self.isolate = isolate or self.workers > 1
+        self.timeout_s = timeout_s
+        self.memory_mb = memory_mb
+        self.executor_name = executor
+        self.address = address
+        if executor not in ("local", "ray"):
+            raise ParameterError(f"executor must be local or ray, got {executor!r}")
+        if (self.isolate or executor == "ray") and self.registry.recipe() is None:
+            raise ParameterError(
+                "plugins registered as Python objects cannot be loaded in worker processes: run in process "
+                "(isolate=False, workers=1) or register them as modules (LWBENCH_PLUGINS)"
+            )
+        self.dataset = dataset if dataset is not None else plan.dataset.build(self.registry)
         self.dataset_id = self.dataset.identity()
         self.frame_indices = plan.frame_indices(self.dataset)
         self.worker = Worker(self.registry, plan.metric_params, {plan.dataset.label: self.dataset})
@@ -108,7 +133,7 @@ class Runner:
         tasks = self.pending()
         total = sum(len(t.configs) for t in tasks)
         summary.skipped = len(self.frame_indices) * len(self.configs) - total
-        executor = LocalExecutor(self.worker, self.workers, self.plan.metric_params)
+        executor = self.make_executor()
 
         def recorded(row: ResultRow, phase: str, done: int, n: int) -> None:
             self._done_now.add(row.key)
@@ -124,16 +149,38 @@ class Runner:
                 # The first frame's original is kept beside its decoded clouds (a report's gallery).
                 first = self.frame_indices[0]
                 record_original(self.store, self.dataset_id, first, self.dataset[first].points)
-            for results in executor.map(tasks):
-                for result in results:
-                    row = record_frame(self.store, self.rows, result)
-                    summary.evaluated += 1
-                    recorded(row, "frames", summary.evaluated, total)
+            for result in executor.map(tasks):
+                row = record_frame(self.store, self.rows, result)
+                summary.evaluated += 1
+                recorded(row, "frames", summary.evaluated, total)
             if self.sequence is not None:
+                # A cloud missing from the store (rows of an older lwbench) is re-evaluated by the
+                # same executor, isolated like every other evaluation.
+                def evaluate_one(index: int, config: CodecConfig) -> FrameResult:
+                    return next(iter(executor.map([FrameTask(self.plan.dataset, index, (config,), True)])))
+
+                self.sequence.evaluate = evaluate_one
                 n = sum(self._todo(k) for k in self.sequence.keys(self.configs))
                 for row in self.sequence.run(self.configs, self._todo, self.plan.seed):
                     summary.sequence_rows += 1
                     recorded(row, "sequence", summary.sequence_rows, n)
         except KeyboardInterrupt:
             summary.interrupted = True
+        finally:
+            executor.close()  # no worker outlives the run
         return summary
+
+    def make_executor(self):
+        """Where this run's evaluations go (see :mod:`.execute`, :mod:`.ray_executor`)."""
+        if self.executor_name == "ray":
+            from .ray_executor import RayExecutor
+
+            return RayExecutor(self.registry, self.plan.metric_params, address=self.address,
+                               max_in_flight=self.workers, timeout_s=self.timeout_s)
+        if not self.isolate:
+            return InProcessExecutor(self.worker)
+        # Torch (a second or two to import) is preloaded only when a codec of the run uses it.
+        torch = any(self.registry.codec(c.name).supports_gpu for c in self.configs)
+        preload = tuple(m for m in PRELOAD if m != "torch" or torch)
+        return ProcessExecutor(self.registry.recipe(), self.plan.metric_params, workers=self.workers,
+                               timeout_s=self.timeout_s, memory_mb=self.memory_mb, preload=preload)

@@ -24,7 +24,7 @@ from lwbench.measure import Stopwatch
 from lwbench.metric import SequenceEvaluation, SequenceMetric
 from lwbench.store import ResultRow, ResultStore
 
-from .evaluate import Evaluator
+from .evaluate import Evaluator, FrameResult
 from .plan import CodecConfig
 from .record import DECODED, RowFactory, record_frame
 
@@ -40,6 +40,8 @@ class SequenceStage:
     evaluator: Evaluator
     metrics: list[SequenceMetric]
     shared: dict[str, Any] = field(default_factory=dict)
+    # How a missing cloud is re-evaluated: the runner sets its executor's; by default in process.
+    evaluate: Callable[[int, CodecConfig], FrameResult] | None = None
 
     def keys(self, configs: list[CodecConfig]) -> list[str]:
         return [self.rows.sequence_row(c, m).key for c in configs for m in self.metrics]
@@ -54,7 +56,10 @@ class SequenceStage:
                 continue
             cloud = self.store.artifact(row.evaluation, DECODED)
             if cloud is None:
-                (result,) = self.evaluator.evaluate(self.dataset[i], [config], keep_decoded=True)
+                if self.evaluate is not None:
+                    result = self.evaluate(i, config)
+                else:
+                    (result,) = self.evaluator.evaluate(self.dataset[i], [config], keep_decoded=True)
                 record_frame(self.store, self.rows, result)
                 if result.status != "ok":
                     failed += 1

@@ -19,11 +19,12 @@ reproduces, and the count does not depend on whether a DracoPy release merges or
 
 from __future__ import annotations
 
+import struct
 from typing import Any
 
 import numpy as np
 
-from lwbench import Frame, Param, PayloadError, RepresentationCodec, hookimpl
+from lwbench import Frame, Param, PayloadError, RepresentationCodec, check_count, checked_cloud, hookimpl
 
 __all__ = ["DracoCodec", "distinct_points", "quantization_step"]
 
@@ -120,19 +121,42 @@ class DracoCodec(RepresentationCodec):
         import DracoPy
 
         payload = self.read_payload(data)
-        n = self.meta_field(payload, "n", int)
+        n = check_count(self.meta_field(payload, "n", int), "point count", codec=self.name)
         if n == 0:
             if payload.body:
                 raise PayloadError("draco payload: body present for an empty scan")
             return np.zeros((0, 3), dtype=np.float32)
+        _check_draco_header(payload.body, n)
         try:
             cloud = DracoPy.decode(payload.body)
+        except MemoryError:
+            # The backstop for what cannot be bounded before the C++ decoder runs: the worker's
+            # memory limit turns Draco's allocation into a MemoryError, reported as the
+            # payload's fault.
+            raise PayloadError("draco payload: the Draco body asks for more memory than this process may use") from None
         except Exception as exc:  # DracoPy raises bare Exception subclasses for any bad buffer
             raise PayloadError(f"draco payload: body is not a valid Draco buffer ({exc})") from None
         pts = np.asarray(getattr(cloud, "points", None), dtype=np.float32)
-        if pts.ndim != 2 or pts.shape != (n, 3) or not np.isfinite(pts).all():
+        if pts.ndim != 2 or pts.shape != (n, 3):
             raise PayloadError(f"draco payload: decoded {pts.shape} points, header says ({n}, 3)")
-        return np.ascontiguousarray(pts)
+        return checked_cloud(pts, self.name)
+
+
+_DRACO_HEAD = struct.Struct("<5sBBBBHi")  # magic, version major, minor, encoder type, method, flags, points
+
+
+def _check_draco_header(body: bytes, n: int) -> None:
+    """What can be checked before DracoPy allocates: the buffer is a k-d tree coded point cloud
+    (what :meth:`DracoCodec.encode` writes: encoder type 0, method 1, no metadata) whose point
+    count is the one the lwbench header states. Draco reads its own count and allocates for it;
+    a crafted count (one flipped bit) asked it for gigabytes."""
+    if len(body) < _DRACO_HEAD.size:
+        raise PayloadError(f"draco payload: a body of {len(body)} bytes is shorter than Draco's header")
+    magic, _major, _minor, kind, method, flags, count = _DRACO_HEAD.unpack_from(body)
+    if magic != b"DRACO" or kind != 0 or method != 1 or flags != 0:
+        raise PayloadError("draco payload: body is not a Draco k-d tree point cloud as this codec writes")
+    if count != n:
+        raise PayloadError(f"draco payload: the Draco buffer holds {count} points, the header says {n}")
 
 
 @hookimpl

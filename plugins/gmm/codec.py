@@ -39,10 +39,14 @@ import numpy as np
 
 from lwbench import (
     DEVICE_PARAM,
+    MAX_GENERATED_POINTS,
     Frame,
     Param,
     PayloadError,
     RepresentationCodec,
+    check_count,
+    check_work,
+    checked_cloud,
     resolve_device,
 )
 
@@ -57,7 +61,9 @@ _HEAD = struct.Struct("<BIII")
 _DTYPES = {"float32": (0, np.dtype("<f4")), "float16": (1, np.dtype("<f2"))}
 _BY_CODE = {code: dt for code, dt in _DTYPES.values()}
 _FLOATS_PER_COMPONENT = 10
-_MAX_POINTS = 1 << 26  # a decoder must not be made to allocate without bound by a header
+# Draws a decoder may be asked for: the body does not bound them (a 121-byte payload, K = 1,
+# asked for 2**26 points and passed 10 GB), so lwbench's budget for generated points does.
+_MAX_POINTS = MAX_GENERATED_POINTS
 
 
 @functools.cache
@@ -163,6 +169,14 @@ class GMMCodec(RepresentationCodec):
         cfg = self.config
         pts = frame.points
         n = len(pts)
+        n_draw = int(round(cfg["samples"] * n))
+        if n_draw > _MAX_POINTS:
+            # Refused before fitting (EM on 10 M points would run for many minutes): a decoder
+            # draws at most _MAX_POINTS, so a payload asking for more could never be decoded.
+            raise ValueError(
+                f"gmm: {n:,} points x samples {cfg['samples']:g} = {n_draw:,} draws on decode, more than the "
+                f"{_MAX_POINTS:,} a decoder accepts (lower samples, or split the scan)"
+            )
         seed = [cfg["seed"], frame.index]
         rng = np.random.default_rng(seed)
         fit_pts = pts
@@ -183,7 +197,6 @@ class GMMCodec(RepresentationCodec):
         if cfg["dtype"] == "float16":
             tiny = np.finfo(np.float16).tiny
             params[:, [4, 6, 9]] = np.maximum(params[:, [4, 6, 9]], tiny)  # keep L's diagonal > 0
-        n_draw = min(int(round(cfg["samples"] * n)), _MAX_POINTS)
         body = _HEAD.pack(dt_code, n_draw, k_occ, k_free) + params.astype(dt).tobytes()
         meta = {"truncate": cfg["truncate"], "seed": cfg["seed"], "reproject": cfg["reproject"]}
         if cfg["reproject"]:
@@ -205,11 +218,14 @@ class GMMCodec(RepresentationCodec):
         dt = _BY_CODE.get(code)
         if dt is None:
             raise PayloadError(f"gmm payload: unknown dtype code {code}")
-        expected = _HEAD.size + _FLOATS_PER_COMPONENT * (k_occ + k_free) * dt.itemsize
-        if len(body) != expected:
-            raise PayloadError(f"gmm payload: body has {len(body)} bytes, expected {expected}")
-        if n > _MAX_POINTS or (n > 0 and k_occ == 0):
+        per = _FLOATS_PER_COMPONENT * dt.itemsize
+        k_all = check_count(k_occ + k_free, "component count", codec="gmm", body=len(body) - _HEAD.size,
+                            bytes_each=per, exact=True)
+        n = check_count(n, "points to draw", codec="gmm", limit=_MAX_POINTS)
+        if n > 0 and k_occ == 0:
             raise PayloadError(f"gmm payload: {n} points from {k_occ} components is not decodable")
+        if k_free:  # every draw is scored under both mixtures
+            check_work(n * k_all, "free-space filtering (points x components)", codec="gmm")
         rows = np.frombuffer(body, dtype=dt, offset=_HEAD.size).reshape(-1, _FLOATS_PER_COMPONENT)
         rows = rows.astype(np.float64)
         free = _unpack(rows[k_occ:]) if k_free else None
@@ -220,7 +236,7 @@ class GMMCodec(RepresentationCodec):
         truncate = float(self.meta_field(payload, "truncate", (int, float)))
         seed = self.meta_field(payload, "seed", int)
         reproject = self.meta_field(payload, "reproject", bool)
-        if not 0 < truncate <= 100 or seed < 0:
+        if not 0 < truncate <= 100 or not 0 <= seed < 2**63:
             raise PayloadError("gmm payload: truncate or seed out of range")
         (w, mu, chol), free, n = self._read(payload)
         import torch
@@ -231,8 +247,8 @@ class GMMCodec(RepresentationCodec):
         x, _ = sample_mixture(w, mu, chol, n, gen, truncate)
         if free is not None:
             x = x[mixture_log_prob(w, mu, chol, x) >= mixture_log_prob(*free, x)]
-        pts = x.numpy().astype(np.float32)
+        pts = checked_cloud(x.numpy(), self.name)  # huge means or factors overflow float32
         if reproject:
             sensor = self.read_sensor(payload)
             pts = sensor.unproject(sensor.project(pts).ranges)
-        return pts
+        return checked_cloud(pts, self.name)

@@ -12,6 +12,7 @@ from lwbench.geometry import voxel_keys
 __all__ = ["KeypointError", "KeypointSelector", "MIN_POINTS", "MAX_NN_PARAM", "voxel_firsts", "voxel_param"]
 
 #: Fewer points than this cannot define a neighbourhood, a scatter matrix or a local maximum.
+MAX_DETECT_POINTS = 1 << 22  # 4.2 M: sixteen 128-beam scans
 MIN_POINTS = 10
 
 #: Neighbourhood cap of the hybrid (radius + k-nearest) search; see ``_geometry``.
@@ -79,6 +80,14 @@ class KeypointSelector(SelectionCodec):
             return np.empty(0, dtype=np.int64)
         leaf = self.config.get("voxel") or 0.0
         keep = voxel_firsts(frame.points, leaf) if leaf > 0 else None
+        detect = n if keep is None else len(keep)
+        if detect > MAX_DETECT_POINTS:
+            # Neighbourhoods of every point are dense (N x max_nn) arrays: 10 M points asked for
+            # many GB and minutes. Refused clearly instead; a voxel leaf thins the scan first.
+            raise KeypointError(
+                f"{self.name}: frame {frame.index}: detecting on {detect:,} points is more than this selector "
+                f"handles ({MAX_DETECT_POINTS:,}); set {self.name}.voxel=<leaf in m> to thin the scan first"
+            )
         if keep is None or len(keep) < MIN_POINTS or len(keep) == n:
             tier, score = self.rank(frame.points)
             return top_k(tier, score, k)

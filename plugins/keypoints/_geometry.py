@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lwbench import thread_budget
 from lwbench.geometry import voxel_keys
 
 __all__ = [
@@ -96,7 +97,7 @@ def hybrid_neighbourhood(points: np.ndarray, max_nn: int, radius: float) -> Neig
     from scipy.spatial import cKDTree  # here, not at import: plugin discovery stays fast
 
     tree = cKDTree(pts, leafsize=32, balanced_tree=False, compact_nodes=False)
-    dist, idx = tree.query(pts, k=k, distance_upper_bound=radius, workers=-1)
+    dist, idx = tree.query(pts, k=k, distance_upper_bound=radius, workers=thread_budget())
     if k == 1:
         dist, idx = dist[:, None], idx[:, None]
     valid = idx < n

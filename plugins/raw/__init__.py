@@ -18,7 +18,7 @@ class RawCodec(RepresentationCodec):
         return self.make_payload(frame, {}, pack_points(frame.points, "float32"))
 
     def decode(self, data: bytes) -> np.ndarray:
-        return unpack_points(self.read_payload(data).body)
+        return unpack_points(self.read_payload(data).body, self.name)
 
 
 @hookimpl

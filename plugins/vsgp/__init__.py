@@ -21,11 +21,12 @@ from lwbench import (
     PayloadError,
     RepresentationCodec,
     SensorModel,
+    checked_cloud,
     hookimpl,
     resolve_device,
 )
 
-from .wire import BODY_FORMATS, pack_body, unpack_body
+from .wire import BODY_FORMATS, MAX_INDUCING, pack_body, unpack_body
 
 if TYPE_CHECKING:  # the GP modules need torch: imported on first encode/decode, not at discovery
     import torch
@@ -54,7 +55,7 @@ class VSGPCodec(RepresentationCodec):
     supports_gpu = True
     params = (
         Param("num_inducing", "int", 500, "inducing points M (3 values each in the payload)",
-              low=1, high=20000),
+              low=1, high=MAX_INDUCING),
         Param("r_oc", "float", None, "occupancy radius in m (default: the sensor's max range)", low=0.01),
         Param("steps", "int", 0, "max Adam steps on the collapsed bound (0: sensor-derived hyper-parameters)",
               low=0, high=1000),
@@ -132,7 +133,7 @@ class VSGPCodec(RepresentationCodec):
         except torch.linalg.LinAlgError as exc:
             raise PayloadError(f"vsgp payload: inducing points do not define a valid GP ({exc})") from None
         self.last_timings = timings
-        return pts
+        return checked_cloud(pts, self.name)
 
 
 @hookimpl

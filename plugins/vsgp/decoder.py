@@ -16,7 +16,7 @@ import numpy as np
 import torch
 from scipy.interpolate import CubicSpline
 
-from lwbench import SensorModel
+from lwbench import SensorModel, check_work
 from lwbench.geometry import cartesian
 
 from .gp import Hyper, Predictor, rq_grid
@@ -38,6 +38,15 @@ def query_grid(sensor: SensorModel, upsample: int) -> tuple[np.ndarray, np.ndarr
     return az, np.interp(idx, np.arange(len(beams)), beams)
 
 
+_BLOCK_ENTRIES = 1 << 23  # kernel entries per block of rows (float32: 32 MB)
+
+
+def evaluated_columns(n: int, stride: int) -> np.ndarray:
+    """The columns predicted exactly: every ``stride``-th, and the last."""
+    cols = np.arange(0, n, stride)
+    return cols if cols[-1] == n - 1 else np.append(cols, n - 1)
+
+
 def auto_stride(h: Hyper, col_step: float) -> int:
     return max(1, int(h.ls_az / (12 * col_step)))
 
@@ -46,14 +55,20 @@ def predict_grid(z: np.ndarray, u: np.ndarray, h: Hyper, az: np.ndarray, el: np.
                  device: torch.device, dtype: torch.dtype = torch.float32) -> tuple[np.ndarray, np.ndarray]:
     """Posterior mean and variance on the grid ``el x az``: two ``(rows, cols)`` arrays."""
     n = len(az)
-    cols = np.arange(0, n, stride)
-    if cols[-1] != n - 1:
-        cols = np.append(cols, n - 1)
+    cols = evaluated_columns(n, stride)
     pred = Predictor(torch.as_tensor(z, device=device), torch.as_tensor(u, device=device), h, dtype)
-    k = rq_grid(torch.as_tensor(az[cols], dtype=dtype, device=device),
-                torch.as_tensor(el, dtype=dtype, device=device), pred.z, h)
-    mean_c = pred.mean(k).double().cpu().numpy()
-    var_c = pred.variance(k).double().cpu().numpy()
+    az_t = torch.as_tensor(az[cols], dtype=dtype, device=device)
+    el_t = torch.as_tensor(el, dtype=dtype, device=device)
+    # The (rows, cols, M) kernel block is built a few rows at a time, so memory stays bounded
+    # (~32 MB per block) whatever the grid: a whole block was 4.7 GB for a 4,000-beam grid.
+    rows_per_block = max(1, _BLOCK_ENTRIES // max(1, len(cols) * len(u)))
+    means, variances = [], []
+    for r0 in range(0, len(el), rows_per_block):
+        k = rq_grid(az_t, el_t[r0 : r0 + rows_per_block], pred.z, h)
+        means.append(pred.mean(k).double().cpu().numpy())
+        variances.append(pred.variance(k).double().cpu().numpy())
+        del k
+    mean_c, var_c = np.concatenate(means), np.concatenate(variances)
     if len(cols) == n:
         return mean_c, var_c
     if len(cols) >= 4:
@@ -81,6 +96,9 @@ def reconstruct(z: np.ndarray, u: np.ndarray, h: Hyper, r_oc: float, sensor: Sen
         return np.zeros((0, 3), dtype=np.float32)
     az, el = query_grid(sensor, upsample)
     s = stride if stride > 0 else auto_stride(h, az[1] - az[0] if len(az) > 1 else 1.0)
+    # The payload's M and hyper-parameters (through the stride) set the cost: bounded before
+    # any kernel is evaluated.
+    check_work(len(el) * len(evaluated_columns(len(az), s)) * len(u), "the decode grid's kernel", codec="vsgp")
     mean, var = predict_grid(z, u, h, az, el, s, device)
     t1 = time.perf_counter()
     r = r_oc - mean

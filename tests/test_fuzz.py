@@ -1,0 +1,104 @@
+"""Fuzzing every registered codec's decoder with hypothesis (and atheris where it installs).
+
+Hypothesis drives :func:`lwbench.fuzz.mutate` -- crafted payloads with a valid CRC -- and the
+decodes run in :class:`lwbench.fuzz.DecodeServer`'s child process, so a hang or a memory bomb
+is a failed example (killed after a generous timeout, memory capped), not a hung test run. The
+contract: only ``PayloadError`` escapes, within a second of CPU and 512 MB. A failure is shrunk
+to a small case and printed as hex. The conformance kit's ``fuzz`` check
+(test_codec_conformance.py) adds a seeded campaign per codec; tools/fuzz_codecs.py runs the long
+ones behind docs/hostile.md.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from test_codec_conformance import FAST_PARAMS
+
+from lwbench.fuzz import _split, class_ref, mutate, seed_payloads, shared_server
+from lwbench.registry import get_registry
+from lwbench.sensor import _CATALOG
+
+REGISTRY = get_registry()
+EXAMPLES = 30  # per codec: ~1 s each for most, a few for the learned models
+
+
+class HypothesisChooser:
+    """Mutation choices drawn from hypothesis, so failures shrink."""
+
+    def __init__(self, data) -> None:
+        self.data = data
+
+    def int(self, lo: int, hi: int) -> int:
+        return self.data.draw(st.integers(lo, hi))
+
+    def bytes(self, n: int) -> bytes:
+        return self.data.draw(st.binary(min_size=n, max_size=n))
+
+
+@pytest.mark.parametrize("codec", sorted(REGISTRY.codecs))
+def test_only_payload_errors_escape_a_decoder(codec):
+    cls = REGISTRY.codec(codec)
+    seeds = seed_payloads(cls, FAST_PARAMS.get(codec))
+    assert seeds, f"{codec}: no seed payload could be encoded"
+    bodies = [_split(data).body for _, data in seeds]
+    server = shared_server()
+    server.register_sensors([s.to_dict(full=True) for s in _CATALOG.values()])
+
+    @settings(max_examples=EXAMPLES, derandomize=True, deadline=None, database=None,
+              suppress_health_check=list(HealthCheck))
+    @given(data=st.data())
+    def check(data):
+        variant, payload = data.draw(st.sampled_from(seeds))
+        case = mutate(payload, HypothesisChooser(data), bodies)
+        outcome = server.decode(class_ref(cls), variant, case, warm_with=payload)
+        assert outcome.verdict == "fine", (
+            f"{codec}: {outcome.verdict} ({outcome.kind}: {outcome.message}; {outcome.cpu_s:.2f} s, "
+            f"{outcome.peak_mb:.0f} MB) on {len(case)} bytes: {case[:256].hex()}"
+        )
+
+    check()
+
+
+def test_mutations_are_sealed_and_reproducible():
+    from lwbench.fuzz import RandomChooser
+    from lwbench.payload import PayloadError
+
+    cls = REGISTRY.codec("raw")
+    seeds = seed_payloads(cls)
+    a = [mutate(d, RandomChooser(7)) for _, d in seeds]
+    b = [mutate(d, RandomChooser(7)) for _, d in seeds]
+    assert a == b
+    # Every case passes the checksum: what stops it must be the header and codec checks.
+    for case in a:
+        try:
+            cls().decode(case)
+        except PayloadError as exc:
+            assert "checksum" not in str(exc)
+
+
+def test_the_harness_counts_hangs_crashes_and_bombs(tmp_path):
+    """The harness itself: a decoder that hangs, dies or allocates without bound is counted as
+    such (timeout, crash, memory), never as a PayloadError, and the server carries on."""
+    from lwbench.fuzz import DecodeServer
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    with DecodeServer(timeout_s=3.0, ceiling_mb=300) as server:
+        seen = {}
+        for mode in ("ok", "hang", "crash", "bomb", "slow"):
+            seen[mode] = server.decode("_hostile_plugins:HostileDecoder", {"mode": mode}, b"x").verdict
+    assert seen == {"ok": "fine", "hang": "timeout", "crash": "crash", "bomb": "memory", "slow": "over 1 s"}
+
+
+@pytest.mark.skipif(importlib.util.find_spec("atheris") is None, reason="atheris is not installed here")
+def test_atheris_harness_runs_a_bounded_campaign():
+    tool = Path(__file__).parents[1] / "tools" / "fuzz_atheris.py"
+    proc = subprocess.run([sys.executable, str(tool), "raw", "-atheris_runs=400", "-timeout=20",
+                           "-rss_limit_mb=3072", "-seed=1"], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-3000:]
