@@ -169,7 +169,6 @@ def test_a_corrupt_or_foreign_checkpoint_is_a_clear_error(tmp_path):
         load_checkpoint(str(tmp_path / "mismatch.pt"), "cpu")
 
 
-@pytest.mark.skipif(not SHIPPED_WEIGHTS.exists(), reason="the shipped checkpoint has not been trained yet")
 def test_the_shipped_checkpoint_loads_and_selects_exactly_the_budget():
     frame = room_scan(get_sensor("hdl64e"), seed=3, index=2)
     for ratio in (1 / 12, 1 / 24):
@@ -187,10 +186,10 @@ def test_the_oracle_keeps_high_priority_then_ground(tmp_path, street):
     LabelStore(tmp_path).write(ds, [0, 1, 2, 3], labels, counts, LabelSettings())
     frame = ds[1]
     n_high = int((labels[1] == HIGH).sum())
-    idx = OracleSelector(labels=str(tmp_path), points=n_high + 100).select(frame)
+    idx = OracleSelector(labels=str(tmp_path), points=n_high + 100, ground_share=0.0).select(frame)
     chosen = labels[1][idx]
     assert (chosen == HIGH).sum() == n_high and (chosen == GROUND).sum() == 100
-    few = OracleSelector(labels=str(tmp_path), points=500).select(frame)
+    few = OracleSelector(labels=str(tmp_path), points=500, ground_share=0.0).select(frame)
     assert (labels[1][few] == HIGH).all()
     # Within the class a seeded random order: spread over the class, not its densest patch.
     high = frame.points[labels[1] == HIGH]
@@ -199,6 +198,6 @@ def test_the_oracle_keeps_high_priority_then_ground(tmp_path, street):
         return hi - lo
 
     assert spread(frame.points[few, 0]) > 0.8 * spread(high[:, 0])
-    np.testing.assert_array_equal(few, OracleSelector(labels=str(tmp_path), points=500).select(frame))
+    np.testing.assert_array_equal(few, OracleSelector(labels=str(tmp_path), points=500, ground_share=0.0).select(frame))
     with pytest.raises(Exception, match="oracle.labels"):
         OracleSelector().select(frame)
