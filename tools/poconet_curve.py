@@ -64,7 +64,7 @@ def main() -> None:
         for c, style in (("high_priority", "o-"), ("low_priority", "s-"), ("ground", "^-")):
             ax2.plot(epochs, [r[f"iou_{c}"] for r in curve], style, label=f"IoU {c.replace('_', ' ')}")
         ax2.plot(epochs, [r["acc_high_priority"] for r in curve], "o--", label="accuracy high priority")
-        ax2.set(xlabel="epoch", ylim=(0, 1), title="held-out scans (seed 20)")
+        ax2.set(xlabel="epoch", ylim=(0, 1), title="validation scans (drive 20, never trained on)")
         ax2.legend(fontsize=8)
         fig.tight_layout()
         args.png.parent.mkdir(parents=True, exist_ok=True)
