@@ -14,7 +14,7 @@ import json
 import math
 import platform
 import sqlite3
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -194,11 +194,9 @@ def _connect_readonly(path: Path) -> sqlite3.Connection:
     return conn
 
 
-def is_results_store(path: str | Path) -> bool:
-    """Whether ``path`` is an lwbench results store (checked read-only: nothing is written)."""
-    path = Path(path)
-    if not path.is_file():
-        return False
+def _ask_sqlite(path: Path, question: Callable[[sqlite3.Connection], bool]) -> bool:
+    """``question`` about the SQLite file at ``path``, asked read-only; False for anything that
+    is not a readable SQLite database (checked by its magic bytes before SQLite opens it)."""
     with open(path, "rb") as fh:
         if fh.read(16) != b"SQLite format 3\x00":
             return False
@@ -207,26 +205,22 @@ def is_results_store(path: str | Path) -> bool:
     except sqlite3.Error:
         return False
     try:
-        return _schema_version(conn) is not None
-    finally:
-        conn.close()
-
-
-def _empty_sqlite(path: Path) -> bool:
-    """An SQLite database with no table at all (a store being created by another process)."""
-    with open(path, "rb") as fh:
-        if fh.read(16) != b"SQLite format 3\x00":
-            return False
-    try:
-        conn = _connect_readonly(path)
-    except sqlite3.Error:
-        return False
-    try:
-        return conn.execute("SELECT COUNT(*) FROM sqlite_master").fetchone()[0] == 0
+        return question(conn)
     except sqlite3.DatabaseError:
         return False
     finally:
         conn.close()
+
+
+def is_results_store(path: str | Path) -> bool:
+    """Whether ``path`` is an lwbench results store (checked read-only: nothing is written)."""
+    path = Path(path)
+    return path.is_file() and _ask_sqlite(path, lambda conn: _schema_version(conn) is not None)
+
+
+def _empty_sqlite(path: Path) -> bool:
+    """An SQLite database with no table at all (a store being created by another process)."""
+    return _ask_sqlite(path, lambda conn: conn.execute("SELECT COUNT(*) FROM sqlite_master").fetchone()[0] == 0)
 
 
 class ResultStore:

@@ -251,7 +251,7 @@ def check_frames() -> dict[str, Frame]:
 
     - ``room``: a VLP-16 scan whose firings are off the range-image grid;
     - ``exact-duplicates``: every other return of it plus exact copies of a quarter of those;
-    - ``hdl32-ring``: :func:`hdl32_ring_scan` (ring field, no-return placeholders, a derived
+    - ``hdl32-ring``: :func:`hdl32_ring_scan` (ring field, no-return filler points, a derived
       beam table with coincident beams).
     """
     room = room_scan(get_sensor("vlp16"), seed=1, dropout=0.02, index=3)

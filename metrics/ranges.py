@@ -87,7 +87,7 @@ def direction_coordinates(points: np.ndarray, sensor: SensorModel) -> tuple[np.n
 
 def _distinct_beams(sensor: SensorModel) -> np.ndarray:
     """The beam elevations with coincident ones merged: a table derived from a scan can hold
-    several beams at one elevation (rings that mostly recorded one no-return placeholder), and
+    several beams at one elevation (rings that mostly recorded one no-return filler point), and
     a zero gap has no "half the spacing"."""
     e = sensor.elevations_rad
     return e[np.r_[True, np.diff(e) > 1e-9]]

@@ -45,6 +45,9 @@ class HypothesisChooser:
 @pytest.mark.parametrize("codec", sorted(REGISTRY.codecs))
 def test_only_payload_errors_escape_a_decoder(codec):
     cls = REGISTRY.codec(codec)
+    if cls.needs:
+        pytest.skip(f"{codec} cannot encode an arbitrary scan: it needs {cls.needs} (its payload is the shared "
+                    "selection payload, fuzzed through every other selector)")
     seeds = seed_payloads(cls, FAST_PARAMS.get(codec))
     assert seeds, f"{codec}: no seed payload could be encoded"
     bodies = [_split(data).body for _, data in seeds]

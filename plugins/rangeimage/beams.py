@@ -22,7 +22,7 @@ The encoder and the decoder share one set of allowed offset *codes* per beam
 exactly it, so no table the encoder writes can be refused. The set always holds code 0 (the
 table's own ray). That matters for beam tables with (nearly) coincident beams, which the
 per-ring medians of :meth:`SensorModel.from_points` give when several rings mostly hold one
-placeholder point (a sensor writing "no return" as a fixed point next to the origin): a
+filler point (a sensor writing "no return" as a fixed point next to the origin): a
 beam's band then is narrower than the two margins, and clipping a float offset into the
 inverted interval ``[lo, hi]`` (what version 2 did) wrote a code below ``lo``.
 """
