@@ -92,7 +92,9 @@ def test_the_harness_counts_hangs_crashes_and_bombs(tmp_path):
     from lwbench.fuzz import DecodeServer
 
     sys.path.insert(0, str(Path(__file__).parent))
-    with DecodeServer(timeout_s=3.0, ceiling_mb=300) as server:
+    # 10 s, not less: after the hang and the crash the child is new, and the bomb's call also
+    # imports the test plugin module there -- 3 s was too little once on a loaded CI machine.
+    with DecodeServer(timeout_s=10.0, ceiling_mb=300) as server:
         seen = {}
         for mode in ("ok", "hang", "crash", "bomb", "slow"):
             seen[mode] = server.decode("_hostile_plugins:HostileDecoder", {"mode": mode}, b"x").verdict
