@@ -69,7 +69,7 @@ def _registry() -> Registry:
 
 def _version(value: bool) -> None:
     if value:
-        from lwbench import __version__
+        from lwbench.version import __version__
 
         print(f"lwbench {__version__}")
         raise typer.Exit()

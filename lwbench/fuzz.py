@@ -475,7 +475,7 @@ def fuzz_frames():
     """Small scans the seed payloads are encoded from: an off-grid room (a quarter of its
     returns), a 32-beam ring scan with a derived sensor (sent by id), 3 points and 1 point."""
     from lwbench.frame import Frame
-    from lwbench.testing import check_frames
+    from lwbench.synthetic import check_frames
 
     frames = check_frames()
     room = frames["room"].subset(np.arange(0, len(frames["room"]), 4))

@@ -26,6 +26,7 @@ import numpy as np
 
 from lwbench.leaderboard import FLAG_TEXT, LeaderboardEntry, build_leaderboard, format_value, header_name
 from lwbench.metric import MetricId
+from lwbench.plotting import pyplot, save_png_svg
 from lwbench.rd import curves_from_entries
 from lwbench.registry import Registry
 from lwbench.run.record import DECODED, ORIGINAL, original_key
@@ -46,28 +47,8 @@ class Figure:
     svg: str  # inline markup
 
 
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    plt.rcParams.update({"svg.hashsalt": "lwbench", "figure.dpi": 100, "font.size": 9})
-    return plt
-
-
-def _save(fig, out: Path, name: str) -> str:
-    """Write ``name.png`` and ``name.svg``; return the SVG markup (deterministic ids)."""
-    fig.savefig(out / f"{name}.png", bbox_inches="tight", dpi=150)
-    buf = io.StringIO()
-    fig.savefig(buf, format="svg", bbox_inches="tight", metadata={"Date": None})
-    svg = buf.getvalue()
-    (out / f"{name}.svg").write_text(svg)
-    return svg[svg.index("<svg"):]
-
-
 def rd_figures(entries: list[LeaderboardEntry], info: Mapping[str, MetricId], out: Path) -> list[Figure]:
-    plt = _plt()
+    plt = pyplot()
     figures = []
     for distortion in DISTORTIONS:
         if distortion not in info:
@@ -104,7 +85,7 @@ def rd_figures(entries: list[LeaderboardEntry], info: Mapping[str, MetricId], ou
             ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
             ax.set_title(f"{distortion} on {ds}", fontsize=9)
             name = f"rd_{distortion}" + ("" if len(datasets) == 1 else f"_{datasets.index(ds)}")
-            figures.append(Figure(name, f"{distortion} against bytes ({ds})", _save(fig, out, name)))
+            figures.append(Figure(name, f"{distortion} against bytes ({ds})", save_png_svg(fig, out, name)))
             plt.close(fig)
     return figures
 
@@ -113,7 +94,7 @@ def runtime_figure(entries: list[LeaderboardEntry], out: Path) -> Figure | None:
     rows = [e for e in entries if any(e.value(k) is not None for k in _RUNTIME)]
     if not rows:
         return None
-    plt = _plt()
+    plt = pyplot()
     labels = [e.label if len({x.dataset for x in rows}) == 1 else f"{e.label} · {e.dataset}" for e in rows]
     fig, ax = plt.subplots(figsize=(7.0, 0.28 * len(rows) + 1.2))
     y = np.arange(len(rows))
@@ -128,7 +109,7 @@ def runtime_figure(entries: list[LeaderboardEntry], out: Path) -> Figure | None:
     ax.set_xlabel("ms per frame (mean ± std over frames)")
     ax.grid(True, axis="x", which="both", alpha=0.3)
     ax.legend(fontsize=8)
-    svg = _save(fig, out, "runtime")
+    svg = save_png_svg(fig, out, "runtime")
     plt.close(fig)
     return Figure("runtime", "Runtime per frame", svg)
 
@@ -158,7 +139,7 @@ def _views(points: np.ndarray, half: float, el_span: tuple[float, float]) -> tup
 
 def gallery_image(original: np.ndarray, decoded: np.ndarray, title: str) -> str:
     """A PNG (base64) of the original and decoded cloud: top-down and range image, by range."""
-    plt = _plt()
+    plt = pyplot()
     r = np.linalg.norm(original, axis=1)
     half = float(np.percentile(np.abs(original[:, :2]), 98)) * 1.05 or 1.0
     from lwbench.geometry import spherical

@@ -302,7 +302,7 @@ class ResultStore:
     def put(self, row: ResultRow, artifacts: dict[str, np.ndarray] | None = None) -> None:
         """Insert or replace one row -- and the arrays it produced (``artifacts``, e.g. the
         decoded cloud, stored under the row's *evaluation* key) -- in one transaction."""
-        from lwbench import __version__
+        from lwbench.version import __version__
 
         if self.readonly:
             raise StoreError(f"{self.path} was opened read-only")

@@ -22,9 +22,18 @@ from lwbench_metrics.localization import (
     track_against_map,
     track_odometry,
 )
-from lwbench_metrics.occupancy import OCCUPANCY_PARAMS, compare_occupancy, occupied_voxels
 
-from lwbench import HIGHER, LOWER, MetricId, SequenceEvaluation, SequenceMetric, hookimpl
+from lwbench import (
+    HIGHER,
+    LOWER,
+    OCCUPANCY_PARAMS,
+    MetricId,
+    SequenceEvaluation,
+    SequenceMetric,
+    compare_occupancy,
+    hookimpl,
+    occupied_voxels,
+)
 
 __all__ = ["LocalizationMetric", "OdometryMetric", "OccupancyMetric", "lwbench_metrics"]
 

@@ -8,7 +8,7 @@ it prints ``listening PORT``) and serves one scout connection at a time:
 - FRAME: the payload is checked and decoded (:func:`lwbench.run.evaluate.checked_cloud`); a
   payload that fails -- corrupted on the wire, say -- is *rejected* and counted, never put in the
   map. A decoded cloud is saved (``frames/SEQ.npy``), logged, and inserted into the
-  :class:`~lwbench_metrics.occupancy.OccupancyMap` by a second thread, so the map never holds
+  :class:`~lwbench.occupancy.OccupancyMap` by a second thread, so the map never holds
   up the next frame's reception;
 - END: the map is finished and written (``map.npy``: occupied voxel keys), and the base exits.
 
@@ -36,7 +36,7 @@ __all__ = ["main"]
 def _warm_up(codec_cls, params: dict) -> None:
     """Encode and decode a small synthetic scan once: first-call costs (imports, JIT) are paid
     before the stream starts, as on a base that has been running."""
-    from lwbench.testing import tunnel_scan
+    from lwbench.synthetic import tunnel_scan
 
     frame = tunnel_scan(0)
     frame = frame.subset(np.arange(0, len(frame), 8))
@@ -66,8 +66,7 @@ class Base:
 
     # -- the map ------------------------------------------------------------------------------
     def _new_map(self, stream: dict) -> None:
-        from lwbench_metrics.occupancy import OccupancyMap
-
+        from lwbench.occupancy import OccupancyMap
         from lwbench.streamfile import StreamHeader
 
         header = StreamHeader.from_dict(stream, "HELLO")
