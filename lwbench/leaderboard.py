@@ -44,6 +44,7 @@ __all__ = [
     "build_leaderboard",
     "check_metric_ids",
     "header_name",
+    "headline_metric",
     "table_rows",
     "to_csv",
     "to_json",
@@ -194,6 +195,11 @@ def _mark_swept_and_frames(entries: list[LeaderboardEntry]) -> None:
         for e in group:
             if e.frame_set != common:
                 e.flags.append("frames_differ")
+
+
+def headline_metric(info: Mapping[str, MetricId] | None) -> str:
+    """The id a board is sorted by when none is asked for."""
+    return next((i for i, m in (info or {}).items() if getattr(m, "headline", False)), "ratio")
 
 
 def check_metric_ids(wanted: list[str], available: Mapping[str, Any] | set[str], what: str) -> None:
