@@ -49,6 +49,7 @@ __all__ = [
     "mutate",
     "seed_payloads",
     "fuzz_codec",
+    "fuzz_sensors",
     "class_ref",
     "shared_server",
     "MAX_CASE_BYTES",
@@ -334,8 +335,9 @@ def _serve(conn, ceiling_mb: int) -> None:  # the child
         os.environ[var] = "1"
     import torch
 
+    from lwbench.catalog import SensorCatalog
     from lwbench.errors import PayloadError
-    from lwbench.sensor import SensorModel, register_sensor
+    from lwbench.sensor import SensorModel
 
     torch.set_num_threads(1)
     resource.setrlimit(resource.RLIMIT_CORE, (0, 0))  # a crash is counted, not dumped
@@ -344,6 +346,7 @@ def _serve(conn, ceiling_mb: int) -> None:  # the child
         ceiling = int((data_mb + ceiling_mb) * 2**20)
         resource.setrlimit(resource.RLIMIT_DATA, (ceiling, resource.getrlimit(resource.RLIMIT_DATA)[1]))
     classes: dict[str, type] = {}
+    sensors = SensorCatalog()  # what the campaign says its payloads may name
     conn.send(("ready",))
     while True:
         msg = conn.recv()
@@ -351,15 +354,14 @@ def _serve(conn, ceiling_mb: int) -> None:  # the child
             return
         op, *args = msg
         if op == "sensors":
-            for d in args[0]:
-                register_sensor(SensorModel.from_dict(d))
+            sensors.update(SensorModel.from_dict(d) for d in args[0])
             conn.send(("ok",))
             continue
         ref, params, data, warm = args
         cls = classes.get(ref) or classes.setdefault(ref, _resolve(ref))
         if warm:  # imports and first-call set-up, not measured
             try:
-                cls(**params).decode(data)
+                cls(**params).use_sensors(sensors).decode(data)
             except Exception:  # noqa: BLE001, S110 - warm-up only
                 pass
             conn.send(("ok",))
@@ -369,7 +371,7 @@ def _serve(conn, ceiling_mb: int) -> None:  # the child
         t0 = time.process_time()
         kind, message = "ok", ""
         try:
-            out = cls(**params).decode(data)
+            out = cls(**params).use_sensors(sensors).decode(data)
             arr = np.asarray(out)
             if not (isinstance(out, np.ndarray) and arr.ndim == 2 and arr.shape[1] == 3
                     and arr.dtype == np.float32 and np.isfinite(arr).all()):
@@ -485,6 +487,12 @@ def fuzz_frames():
     return [room, ring, three, one]
 
 
+def fuzz_sensors() -> list[dict]:
+    """The full tables of :func:`fuzz_frames`' sensors: what a decode server is told, since seed
+    payloads name their (derived) sensors by id."""
+    return [s.to_dict(full=True) for s in {f.sensor.sensor_id: f.sensor for f in fuzz_frames()}.values()]
+
+
 def _variants(codec_cls, params: dict) -> list[dict]:
     """The given parameters, and each declared choice / flag changed one at a time."""
     out = [dict(params)]
@@ -584,11 +592,9 @@ def fuzz_codec(codec_cls, params: dict | None = None, *, cases: int = 1000, seco
     report = FuzzReport(codec_cls.name)
     if not seeds:
         return report
-    from lwbench.sensor import _CATALOG
-
     own = server is None
     server = server or DecodeServer()
-    server.register_sensors([s.to_dict(full=True) for s in _CATALOG.values()])
+    server.register_sensors(fuzz_sensors())
     ref = class_ref(codec_cls)
     bodies = [_split(data).body for _, data in seeds]
     ch = RandomChooser([seed, zlib.crc32(codec_cls.name.encode())])

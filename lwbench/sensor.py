@@ -242,29 +242,38 @@ class SensorModel:
         """What a payload carries to name its sensor: ``{"preset": name}`` for a preset, else
         ``{"id": sensor_id}`` (~25 bytes). A receiver needs a sensor's table once, not in every
         frame -- a derived 64-beam table is ~1.5 kB of JSON, which per frame would be a fifth of
-        a VSGP payload -- so the table travels once per stream (:func:`register_sensor` on the
-        receiving side; the runner does it for each frame's sensor before decoding)."""
+        a VSGP payload -- so the table travels once per stream and the receiver hands its decoder
+        the tables it was told (:class:`lwbench.catalog.SensorCatalog`)."""
         preset = SENSOR_PRESETS.get(self.name)
         if preset is not None and preset == self:
             return {"preset": self.name}
         return {"id": self.sensor_id}
 
     @classmethod
-    def from_wire(cls, d: dict) -> SensorModel:
-        """Inverse of :meth:`to_wire` (a full table, as older payloads carried, also reads).
+    def from_wire(cls, d: dict, catalog=None, *, legacy: bool = False) -> SensorModel:
+        """Inverse of :meth:`to_wire` (a full table, as older payloads carried, also reads); an
+        id is looked up in ``catalog`` (a :class:`lwbench.catalog.SensorCatalog`: the tables the
+        receiver was told) -- and, with ``legacy`` (a decoder never handed its sensors), among
+        what this process encoded or registered with the deprecated :func:`register_sensor`.
 
-        Raises :class:`UnknownSensorError` for an id this process was not told about and
+        Raises :class:`UnknownSensorError` for an id the receiver was not told about and
         ``ValueError`` / ``KeyError`` / ``TypeError`` for a malformed description."""
         if not isinstance(d, dict):
             raise TypeError(f"a sensor description is an object, got {type(d).__name__}")
         if "id" in d and len(d) == 1:
             key = d["id"]
-            if not isinstance(key, str) or key not in _CATALOG:
+            found = None
+            if isinstance(key, str):
+                found = catalog.get(key) if catalog is not None else None
+                if found is None and (legacy or catalog is None):
+                    found = _legacy_lookup(key)
+            if found is None:
                 raise UnknownSensorError(
                     f"sensor {key!r} is not known to this receiver: its table travels once per stream "
-                    "(register it with lwbench.register_sensor, or decode with the stream's sensor.json)"
+                    "(hand the decoder the stream's sensors: codec.use_sensors(...), or decode with the "
+                    "stream's sensor.json)"
                 )
-            return _CATALOG[key]
+            return found
         if "preset" in d and not isinstance(d["preset"], str):
             raise TypeError("sensor preset must be a name")
         return cls.from_dict(d)
@@ -322,13 +331,41 @@ SENSOR_PRESETS: dict[str, SensorModel] = {
 }
 
 
-# Sensors this process has been told about, by id (the receiving side of "the table travels once
-# per stream"). Presets need no registration.
+# Deprecated memory of sensors: those this process's encoders wrote and those given to the
+# deprecated register_sensor. Only a decoder that was never handed its sensors reads it -- old
+# plugin tests' ``MyCodec().decode(MyCodec().encode(frame))`` -- with a DeprecationWarning. No
+# lwbench receiver does (each hands its decoder the stream's sensors: lwbench.catalog), so no
+# decode of lwbench depends on what else the process did; it goes once plugins' tests hand theirs.
 _CATALOG: dict[str, SensorModel] = {}
 
 
+def remember_encoded(sensor: SensorModel) -> None:
+    """Note that an encoder of this process wrote a payload naming ``sensor`` (see ``_CATALOG``)."""
+    _CATALOG.setdefault(sensor.sensor_id, sensor)
+
+
+def _legacy_lookup(sensor_id: str) -> SensorModel | None:
+    found = _CATALOG.get(sensor_id)
+    if found is not None:
+        import warnings
+
+        warnings.warn(
+            f"sensor {sensor_id} was resolved from what this process encoded before: hand the decoder its "
+            "sensors (codec.use_sensors([frame.sensor])); a bare decoder will not find them in a later lwbench",
+            DeprecationWarning, stacklevel=4,
+        )
+    return found
+
+
 def register_sensor(sensor: SensorModel) -> str:
-    """Tell this process (a decoder) about a sensor, so payloads naming it by id decode."""
+    """Deprecated: hand the decoder its sensors instead (``codec.use_sensors([sensor])``).
+
+    Still makes payloads naming ``sensor`` by id decode in this process, for scripts written
+    before decoders were told their sensors."""
+    import warnings
+
+    warnings.warn("lwbench.register_sensor is deprecated: hand the decoder its sensors with "
+                  "codec.use_sensors([sensor])", DeprecationWarning, stacklevel=2)
     _CATALOG.setdefault(sensor.sensor_id, sensor)
     return sensor.sensor_id
 

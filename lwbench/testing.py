@@ -99,7 +99,7 @@ def codec_checks(codec_cls, params: dict | None = None) -> list[tuple[str, objec
                 _fail("payloads", f"{label}: encode returned {type(data).__name__}, not bytes")
             if Payload.from_bytes(data).codec_id != codec_cls.name:
                 _fail("payloads", f"{label}: the payload names another codec")
-            cloud = codec_cls(**params).decode(data)  # a fresh instance: only the bytes cross
+            cloud = codec_cls(**params).use_sensors([frame.sensor]).decode(data)  # fresh: only the bytes cross
             if not (isinstance(cloud, np.ndarray) and cloud.ndim == 2 and cloud.shape[1] == 3):
                 _fail("payloads", f"{label}: decode must return an (M, 3) array, got {getattr(cloud, 'shape', cloud)}")
             if cloud.dtype != np.float32 or not np.isfinite(cloud).all() or len(cloud) == 0:
@@ -110,7 +110,7 @@ def codec_checks(codec_cls, params: dict | None = None) -> list[tuple[str, objec
             data = codec_cls(**params).encode(frame)
             if codec_cls(**params).encode(frame) != data:
                 _fail("deterministic", f"{label}: two encodes of one frame differ (seed every random choice)")
-            a, b = codec_cls(**params).decode(data), codec_cls(**params).decode(data)
+            a, b = (codec_cls(**params).use_sensors([frame.sensor]).decode(data) for _ in range(2))
             if not np.array_equal(a, b):
                 _fail("deterministic", f"{label}: two decodes of one payload differ")
 
@@ -139,7 +139,7 @@ def codec_checks(codec_cls, params: dict | None = None) -> list[tuple[str, objec
             if not str(exc):
                 _fail("empty_scan", "refused an empty scan without a message")
             return
-        cloud = codec_cls(**params).decode(data)
+        cloud = codec_cls(**params).use_sensors([empty.sensor]).decode(data)
         if cloud.ndim != 2 or cloud.shape[1] != 3 or not np.isfinite(cloud).all():
             _fail("empty_scan", "an empty scan's payload must decode to an (M, 3) finite cloud")
 
@@ -163,7 +163,8 @@ def codec_checks(codec_cls, params: dict | None = None) -> list[tuple[str, objec
 
         for label, frame in check_frames().items():
             data = codec_cls(**params).encode(frame)
-            ev = Evaluation(frame, data, codec_cls(**params).decode(data), codec_cls.kind, {"encode_ms": 1.0})
+            decoded = codec_cls(**params).use_sensors([frame.sensor]).decode(data)
+            ev = Evaluation(frame, data, decoded, codec_cls.kind, {"encode_ms": 1.0})
             for metric in get_registry().frame_metric_instances():
                 values = metric.compute(ev)
                 nan = [k for k, v in values.items() if v is not None and v != v]

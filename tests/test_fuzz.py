@@ -21,9 +21,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from test_codec_conformance import FAST_PARAMS
 
-from lwbench.fuzz import _split, class_ref, mutate, seed_payloads, shared_server
+from lwbench.fuzz import _split, class_ref, fuzz_sensors, mutate, seed_payloads, shared_server
 from lwbench.registry import get_registry
-from lwbench.sensor import _CATALOG
 
 REGISTRY = get_registry()
 EXAMPLES = 30  # per codec: ~1 s each for most, a few for the learned models
@@ -52,7 +51,7 @@ def test_only_payload_errors_escape_a_decoder(codec):
     assert seeds, f"{codec}: no seed payload could be encoded"
     bodies = [_split(data).body for _, data in seeds]
     server = shared_server()
-    server.register_sensors([s.to_dict(full=True) for s in _CATALOG.values()])
+    server.register_sensors(fuzz_sensors())
 
     @settings(max_examples=EXAMPLES, derandomize=True, deadline=None, database=None,
               suppress_health_check=list(HealthCheck))

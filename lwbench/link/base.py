@@ -4,7 +4,8 @@
 It warms its decoder up on a synthetic scan, listens on 127.0.0.1 (the configured port, or any;
 it prints ``listening PORT``) and serves one scout connection at a time:
 
-- HELLO: the stream header; the sensor table is registered, so payloads naming it by id decode;
+- HELLO: the stream header; its sensor table is handed to the decoder, so payloads naming it by
+  id decode;
 - FRAME: the payload is checked and decoded (:func:`lwbench.run.evaluate.checked_cloud`); a
   payload that fails -- corrupted on the wire, say -- is *rejected* and counted, never put in the
   map. A decoded cloud is saved (``frames/SEQ.npy``), logged, and inserted into the
@@ -70,7 +71,8 @@ class Base:
         from lwbench.streamfile import StreamHeader
 
         header = StreamHeader.from_dict(stream, "HELLO")
-        (sensor,) = header.register_sensors("HELLO")
+        (sensor,) = header.sensor_models("HELLO")
+        self.decoder.use_sensors([sensor])
         if self.map is None:
             self.map = OccupancyMap(sensor, float(self.cfg["voxel"]))
 

@@ -2,7 +2,8 @@
 
 :meth:`Evaluator.evaluate` is the whole job of a worker: encode, decode the bytes with a
 *fresh* codec instance (so nothing but the payload -- and the sensor table the stream carries
-once -- crosses from encoder to decoder), check the decoded cloud, compute every frame metric.
+once, handed to the decoder from the dataset -- crosses from encoder to decoder), check the
+decoded cloud, compute every frame metric.
 It returns :class:`FrameResult` values and touches no store: recording is the next stage's job,
 so the same function serves the local pool, a cluster executor and the sequence stage's
 re-evaluation of a missing cloud.
@@ -29,7 +30,6 @@ from lwbench.frame import Frame
 from lwbench.measure import PeakMemory, Stopwatch
 from lwbench.metric import Evaluation
 from lwbench.registry import Registry
-from lwbench.sensor import register_sensor
 
 from .plan import CodecConfig
 
@@ -89,9 +89,9 @@ def encode_decode(codec_cls: type[Codec], config: CodecConfig, encoder: Codec, f
                 payload = encoder.encode(frame)
         if not isinstance(payload, (bytes, bytearray)):
             raise LwbenchError(f"{config.name}: encode returned {type(payload).__name__}, not bytes")
-        # The receiver knows the stream's sensor: its table travels once per stream, not per frame.
-        register_sensor(frame.sensor)
-        decoder = codec_cls(**config.params)
+        # The receiver knows the stream's sensor (its table travels once per stream, not per
+        # frame): the decoder is handed the dataset's sensor for this frame, nothing else.
+        decoder = codec_cls(**config.params).use_sensors([frame.sensor])
         with watch.time("decode_ms"):
             decoded = decoder.decode(bytes(payload))
     return Encoded(bytes(payload), checked_cloud(config.name, decoded), watch.ms, mem.peak_mb, device)
