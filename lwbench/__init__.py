@@ -4,6 +4,7 @@ This module is the public API. Plugins (including the built-in ones under ``plug
 import only from here.
 """
 
+from lwbench.catalog import SensorCatalog
 from lwbench.codec import BUDGET_PARAMS, Codec, CodecKind, RepresentationCodec, SelectionCodec, top_k
 from lwbench.dataset import Dataset
 from lwbench.deps import import_open3d
@@ -26,12 +27,15 @@ from lwbench.frame import Frame
 from lwbench.hookspecs import hookimpl
 from lwbench.io import SENSOR_FILE, read_kitti_bin, read_point_file, write_kitti_sequence
 from lwbench.limits import (
+    MAX_COORDINATE,
     MAX_GENERATED_POINTS,
     MAX_POINTS,
     MAX_WORK,
+    RANGE_MARGIN,
     check_count,
     check_work,
     checked_cloud,
+    coordinate_bound,
     zstd_decompress,
 )
 from lwbench.metric import HIGHER, LOWER, Evaluation, FrameMetric, MetricId, SequenceEvaluation, SequenceMetric
@@ -53,6 +57,7 @@ __all__ = [
     "codec_class",
     "CodecKind",
     "compare_occupancy",
+    "coordinate_bound",
     "DataFormatError",
     "Dataset",
     "DataWarning",
@@ -68,6 +73,7 @@ __all__ = [
     "InvalidFrameError",
     "LOWER",
     "LwbenchError",
+    "MAX_COORDINATE",
     "MAX_GENERATED_POINTS",
     "MAX_POINTS",
     "MAX_WORK",
@@ -84,6 +90,7 @@ __all__ = [
     "PayloadError",
     "PluginError",
     "POINT_ENCODINGS",
+    "RANGE_MARGIN",
     "RangeImage",
     "read_kitti_bin",
     "read_point_file",
@@ -94,6 +101,7 @@ __all__ = [
     "SelectionError",
     "SENSOR_FILE",
     "SENSOR_PRESETS",
+    "SensorCatalog",
     "SensorModel",
     "SequenceEvaluation",
     "SequenceMetric",

@@ -26,7 +26,7 @@ from lwbench.io import SENSOR_FILE
 from lwbench.params import resolve_params
 from lwbench.payload import Payload
 from lwbench.registry import Registry
-from lwbench.run.evaluate import checked_cloud
+from lwbench.run.evaluate import decoded_cloud
 from lwbench.run.plan import CodecConfig, expand_codec_configs
 from lwbench.streamfile import (
     STREAM_SUFFIX,
@@ -168,7 +168,7 @@ def decoded_frames(
     for entry, data in source:
         try:
             payload = Payload.from_bytes(data)
-            points = checked_cloud(cls.name, cls(**params).use_sensors(sensors).decode(data))
+            points = decoded_cloud(cls.name, cls(**params).use_sensors(sensors).decode(data))
         except LwbenchError as exc:
             raise type(exc)(f"{source.path}: frame {entry.name}: {exc}") from None
         out.append(DecodedFrame(entry, points, payload.pose, len(data)))

@@ -6,7 +6,7 @@ it prints ``listening PORT``) and serves one scout connection at a time:
 
 - HELLO: the stream header; its sensor table is handed to the decoder, so payloads naming it by
   id decode;
-- FRAME: the payload is checked and decoded (:func:`lwbench.run.evaluate.checked_cloud`); a
+- FRAME: the payload is checked and decoded (:func:`lwbench.run.evaluate.decoded_cloud`); a
   payload that fails -- corrupted on the wire, say -- is *rejected* and counted, never put in the
   map. A decoded cloud is saved (``frames/SEQ.npy``), logged, and inserted into the
   :class:`~lwbench.occupancy.OccupancyMap` by a second thread, so the map never holds
@@ -107,12 +107,12 @@ class Base:
     # -- receiving ----------------------------------------------------------------------------
     def frame(self, seq: int, due: float, body: bytes, recv_end: float) -> None:
         from lwbench.payload import Payload
-        from lwbench.run.evaluate import checked_cloud
+        from lwbench.run.evaluate import decoded_cloud
 
         event: dict = {"ev": "frame", "seq": seq, "due": due, "recv_end": recv_end, "bytes": len(body)}
         try:
             payload = Payload.from_bytes(body, expect_codec=self.codec_cls.name)
-            points = checked_cloud(self.codec_cls.name, self.decoder.decode(body))
+            points = decoded_cloud(self.codec_cls.name, self.decoder.decode(body))
         except Exception as exc:  # noqa: BLE001 - a bad payload is rejected and counted, whatever the error
             error = f"{type(exc).__name__}: {exc}"
             self.log({**event, "status": "rejected", "dec_end": time.monotonic(), "error": error})

@@ -12,7 +12,7 @@ leaderboard (:mod:`lwbench.leaderboard`) reads what they stored.
 """
 
 from .evaluate import Evaluator, FrameResult
-from .execute import DEFAULT_TIMEOUT_S, FrameTask, InProcessExecutor, LocalExecutor, ProcessExecutor, Worker
+from .execute import DEFAULT_TIMEOUT_S, FrameTask, InProcessExecutor, ProcessExecutor, Worker
 from .plan import (
     CodecConfig,
     DatasetSpec,
@@ -46,7 +46,6 @@ __all__ = [
     "Evaluator",
     "FrameResult",
     "FrameTask",
-    "LocalExecutor",
     "Progress",
     "Provenance",
     "RowFactory",

@@ -25,15 +25,16 @@ from typing import Any
 import numpy as np
 
 from lwbench.codec import Codec, SelectionCodec
-from lwbench.errors import DecodeError, LwbenchError, MissingDependencyError
+from lwbench.errors import DecodeError, LwbenchError, MissingDependencyError, PayloadError
 from lwbench.frame import Frame
+from lwbench.limits import checked_cloud
 from lwbench.measure import PeakMemory, Stopwatch
 from lwbench.metric import Evaluation
 from lwbench.registry import Registry
 
 from .plan import CodecConfig
 
-__all__ = ["FrameResult", "Evaluator", "Encoded", "checked_cloud", "encode_decode"]
+__all__ = ["FrameResult", "Evaluator", "Encoded", "decoded_cloud", "encode_decode"]
 
 
 @dataclass
@@ -94,18 +95,17 @@ def encode_decode(codec_cls: type[Codec], config: CodecConfig, encoder: Codec, f
         decoder = codec_cls(**config.params).use_sensors([frame.sensor])
         with watch.time("decode_ms"):
             decoded = decoder.decode(bytes(payload))
-    return Encoded(bytes(payload), checked_cloud(config.name, decoded), watch.ms, mem.peak_mb, device)
+    return Encoded(bytes(payload), decoded_cloud(config.name, decoded), watch.ms, mem.peak_mb, device)
 
 
-def checked_cloud(codec: str, decoded: object) -> np.ndarray:
-    """A decoder's output as float32 ``(M, 3)``, or ``DecodeError`` if it is not a finite cloud
-    (every receiver -- the runner, ``lwbench decode``, the stream's base -- checks the same way)."""
-    decoded = np.asarray(decoded)
-    if decoded.ndim != 2 or decoded.shape[1] != 3 or not np.issubdtype(decoded.dtype, np.floating):
-        raise DecodeError(f"{codec}: decode returned shape {decoded.shape}, expected (M, 3)")
-    if not np.isfinite(decoded).all():
-        raise DecodeError(f"{codec}: decode returned NaN/inf coordinates")
-    return decoded.astype(np.float32, copy=False)
+def decoded_cloud(codec: str, decoded: object) -> np.ndarray:
+    """A decoder's output as every receiver -- the runner, ``lwbench decode``, the stream's base --
+    takes it: :func:`lwbench.checked_cloud`'s checks, a breach blamed on the codec (``DecodeError``:
+    its decoder let through what it should have refused as a ``PayloadError``)."""
+    try:
+        return checked_cloud(decoded, codec)
+    except PayloadError as exc:
+        raise DecodeError(f"{codec}: decode returned what no decoder may return ({exc})") from None
 
 
 class Evaluator:
