@@ -38,7 +38,18 @@ from lwbench.limits import (
     coordinate_bound,
     zstd_decompress,
 )
-from lwbench.metric import HIGHER, LOWER, Evaluation, FrameMetric, MetricId, SequenceEvaluation, SequenceMetric
+from lwbench.metric import (
+    ALL_CURVES,
+    HIGHER,
+    LOWER,
+    METRIC_ROLES,
+    Evaluation,
+    FrameMetric,
+    Guard,
+    MetricId,
+    SequenceEvaluation,
+    SequenceMetric,
+)
 from lwbench.occupancy import OCCUPANCY_PARAMS, OccupancyMap, compare_occupancy, occupied_voxels
 from lwbench.parallel import thread_budget
 from lwbench.params import Param
@@ -49,6 +60,7 @@ from lwbench.sensor import SENSOR_PRESETS, RangeImage, SensorModel, get_sensor, 
 from lwbench.version import __version__
 
 __all__ = [
+    "ALL_CURVES",
     "BUDGET_PARAMS",
     "check_count",
     "check_work",
@@ -67,6 +79,7 @@ __all__ = [
     "Frame",
     "FrameMetric",
     "get_sensor",
+    "Guard",
     "HIGHER",
     "hookimpl",
     "import_open3d",
@@ -77,6 +90,7 @@ __all__ = [
     "MAX_GENERATED_POINTS",
     "MAX_POINTS",
     "MAX_WORK",
+    "METRIC_ROLES",
     "MetricId",
     "MissingDependencyError",
     "OCCUPANCY_PARAMS",

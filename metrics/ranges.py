@@ -42,7 +42,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from lwbench import HIGHER, LOWER, Evaluation, FrameMetric, MetricId, Param, SensorModel, thread_budget
+from lwbench import HIGHER, LOWER, Evaluation, FrameMetric, Guard, MetricId, Param, SensorModel, thread_budget
 from lwbench.geometry import spherical
 
 if TYPE_CHECKING:
@@ -232,8 +232,11 @@ class RangeMetric(FrameMetric):
     version = "2"  # 1 was the cell-based definition
     order = 20
     ids = (
-        MetricId("range_rmsd", "m", LOWER, default=True),
-        MetricId("coverage", "share", HIGHER, default=True),
+        MetricId("range_rmsd", "m", LOWER, default=True, role="distortion"),
+        # Below 90 % of the returns paired, a codec is flagged (it cannot win by dropping the scan),
+        # and its range RMSD -- over the paired returns only -- is kept off the RD curves.
+        MetricId("coverage", "share", HIGHER, default=True, guard=Guard(
+            "low_coverage", "low coverage", below=0.9, off_curves=("range_rmsd",), setting="min_coverage")),
         MetricId("false_returns", "share", LOWER, default=True),
     )
     description = (

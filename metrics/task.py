@@ -4,7 +4,7 @@ Registered through the ``task_metrics`` entry point; the runner calls each once 
 configuration when the dataset has ground-truth poses. Every number is computed with the fixed
 settings in each class's ``settings`` (part of the result's key).
 
-Ids (DESIGN.md): ``ate_rmse``, ``ate_mean`` (m), ``rot_err_deg``, ``rpe_trans`` (m),
+Ids (docs/design.md): ``ate_rmse``, ``ate_mean`` (m), ``rot_err_deg``, ``rpe_trans`` (m),
 ``rpe_rot_deg``, ``map_points``, ``map_share``, ``icp_failures``, ``occ_iou``, ``occ_precision``,
 ``occ_recall`` (occupancy at 0.2 m). Added: ``mape`` (PocoNet's combined error, mean
 ``|E - I|_F``), the ``odom_*`` odometry variants, and ``occ_*_005`` at 0.05 m.
@@ -24,9 +24,11 @@ from lwbench_metrics.localization import (
 )
 
 from lwbench import (
+    ALL_CURVES,
     HIGHER,
     LOWER,
     OCCUPANCY_PARAMS,
+    Guard,
     MetricId,
     SequenceEvaluation,
     SequenceMetric,
@@ -63,16 +65,19 @@ def _drives(seq: SequenceEvaluation) -> tuple[list[int], list[int]] | None:
     return (drives[0], drives[1]) if len(drives) >= 2 else None
 
 
+_POSE_IDS = ("ate_rmse", "ate_mean", "rot_err_deg", "mape", "rpe_trans", "rpe_rot_deg", "icp_failures")
+
+
 def _pose_ids(prefix: str, default: bool) -> tuple[MetricId, ...]:
-    """The trajectory-error ids, shared by map tracking and odometry (``odom_`` prefix)."""
-    return (
-        MetricId(f"{prefix}ate_rmse", "m", LOWER, default=default),
-        MetricId(f"{prefix}ate_mean", "m", LOWER),
-        MetricId(f"{prefix}rot_err_deg", "deg", LOWER),
-        MetricId(f"{prefix}mape", "", LOWER),
-        MetricId(f"{prefix}rpe_trans", "m", LOWER),
-        MetricId(f"{prefix}rpe_rot_deg", "deg", LOWER),
-        MetricId(f"{prefix}icp_failures", "frames", LOWER),
+    """The trajectory-error ids, shared by map tracking and odometry (``odom_`` prefix); the map
+    tracking's (``default``) are what the board shows, plots and flags a failed registration by."""
+    units = {"ate_rmse": "m", "ate_mean": "m", "rot_err_deg": "deg", "mape": "", "rpe_trans": "m",
+             "rpe_rot_deg": "deg", "icp_failures": "frames"}
+    icp = Guard("icp_failures", "ICP failures", above=0) if default else None
+    return tuple(
+        MetricId(f"{prefix}{i}", units[i], LOWER, default=default and i == "ate_rmse",
+                 role="distortion" if default and i == "ate_rmse" else "", guard=icp if i == "icp_failures" else None)
+        for i in _POSE_IDS
     )
 
 
@@ -85,7 +90,10 @@ class LocalizationMetric(SequenceMetric):
         *_pose_ids("", default=True),
         MetricId("map_points", "pts", LOWER),
         MetricId("map_share", "share", LOWER),
-        MetricId("icp_failures_original", "frames", LOWER),
+        # When the *original* scans already fail ICP here, no codec's localization figure means
+        # anything: they are shown n/m and the configurations left off every RD curve.
+        MetricId("icp_failures_original", "frames", LOWER, guard=Guard(
+            "localization_not_meaningful", "loc. n/m", above=0, voids=_POSE_IDS, off_curves=(ALL_CURVES,))),
     )
     version = "3"  # 2: icp_failures_original; 3: a mapping drive and a tracking drive when there are two
     description = (
@@ -162,7 +170,8 @@ class OccupancyMetric(SequenceMetric):
     order = 60
     settings = dict(OCCUPANCY_PARAMS)
     ids = tuple(
-        MetricId(f"occ_{m}{_suffix(v, i == 0)}", "share", HIGHER, default=(i == 0 and m == "iou"))
+        MetricId(f"occ_{m}{_suffix(v, i == 0)}", "share", HIGHER, default=(i == 0 and m == "iou"),
+                 role="distortion" if i == 0 and m == "iou" else "")
         for i, v in enumerate(OCCUPANCY_PARAMS["resolutions"])
         for m in ("iou", "precision", "recall")
     )

@@ -67,3 +67,20 @@ def test_production_code_uses_no_test_kit_and_no_private_helper_of_another_modul
             if module.startswith("lwbench.testing") or (_private(module, name) and module != mod.name):
                 offenders.append(f"{mod.path.relative_to(ROOT)}: from {module} import {name}")
     assert offenders == []
+
+
+def test_no_metric_id_is_written_into_the_board_the_report_or_the_gates():
+    """What an id means to the board -- sort direction, default column, headline, what the report
+    plots, the quality guard -- is declared by its metric (lwbench.MetricId), so a third-party
+    metric is treated as a built-in one: these modules hold no metric id as a string."""
+    from lwbench.registry import get_registry
+
+    ids = set(get_registry().metric_info())
+    for name in ("lwbench.leaderboard", "lwbench.report", "lwbench.pytest_plugin", "lwbench.gates"):
+        tree = ast.parse(MODULES[name].path.read_text())
+        docstrings = {id(n.body[0].value) for n in ast.walk(tree)
+                      if isinstance(n, (ast.Module, ast.FunctionDef, ast.ClassDef)) and n.body
+                      and isinstance(n.body[0], ast.Expr) and isinstance(n.body[0].value, ast.Constant)}
+        strings = {n.value for n in ast.walk(tree)
+                   if isinstance(n, ast.Constant) and isinstance(n.value, str) and id(n) not in docstrings}
+        assert not strings & ids, f"{name} names metric ids {sorted(strings & ids)}"

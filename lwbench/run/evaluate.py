@@ -90,9 +90,10 @@ def encode_decode(codec_cls: type[Codec], config: CodecConfig, encoder: Codec, f
                 payload = encoder.encode(frame)
         if not isinstance(payload, (bytes, bytearray)):
             raise LwbenchError(f"{config.name}: encode returned {type(payload).__name__}, not bytes")
-        # The receiver knows the stream's sensor (its table travels once per stream, not per
-        # frame): the decoder is handed the dataset's sensor for this frame, nothing else.
-        decoder = codec_cls(**config.params).use_sensors([frame.sensor])
+        # The receiver knows the stream's sensors (their tables travel once per stream, not per
+        # frame): the decoder is handed the dataset's sensor for this frame and the tables the
+        # encoder's payloads named -- what a stream header carries -- and nothing else.
+        decoder = codec_cls(**config.params).use_sensors([frame.sensor, *encoder.sensors])
         with watch.time("decode_ms"):
             decoded = decoder.decode(bytes(payload))
     return Encoded(bytes(payload), decoded_cloud(config.name, decoded), watch.ms, mem.peak_mb, device)
