@@ -207,12 +207,6 @@ class Registry:
             ids.extend(m.ids)
         return ids
 
-    def sequence_metric_ids(self) -> list[str]:
-        ids: list[str] = []
-        for m in self.sequence_metrics.values():
-            ids.extend(m.ids)
-        return ids
-
     def raise_failures(self) -> None:
         if self.failures:
             lines = "\n".join(f"  {f.plugin} ({f.target}): {f.error}" for f in self.failures)
