@@ -84,3 +84,20 @@ def test_no_metric_id_is_written_into_the_board_the_report_or_the_gates():
         strings = {n.value for n in ast.walk(tree)
                    if isinstance(n, ast.Constant) and isinstance(n.value, str) and id(n) not in docstrings}
         assert not strings & ids, f"{name} names metric ids {sorted(strings & ids)}"
+
+
+def test_the_public_api_is_written_down_once_and_agrees_with_the_code():
+    """docs/plugins.md's "The public API" lists exactly what lwbench, lwbench.geometry and
+    lwbench.testing export (their __all__)."""
+    import re
+
+    import lwbench
+    import lwbench.geometry
+    import lwbench.testing
+
+    text = (ROOT / "docs" / "plugins.md").read_text()
+    section = text[text.index("## The public API"):]
+    parts = re.split(r"\*\*`(lwbench(?:\.\w+)?)`\*\*", section)
+    listed = {parts[i]: set(re.findall(r"`([A-Za-z_][A-Za-z0-9_]*)`", parts[i + 1])) for i in range(1, len(parts), 2)}
+    for module in (lwbench, lwbench.geometry, lwbench.testing):
+        assert listed[module.__name__] == set(module.__all__), module.__name__
