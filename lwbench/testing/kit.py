@@ -10,7 +10,7 @@ from collections.abc import Callable, Iterable
 from .base import Check, checks_for, skip_reason
 
 __all__ = ["check_codec", "check_dataset", "check_metric", "codec_checks", "dataset_checks", "metric_checks",
-           "parametrize_with_checks", "plugin_kind"]
+           "parametrize_with_checks"]
 
 
 def plugin_kind(plugin_cls: type) -> str:
