@@ -133,8 +133,12 @@ def test_a_flat_folder_of_bins_takes_one_naming_scheme(tmp_path):
         ds = KittiDataset(path=str(tmp_path))
     assert [p.name for p in ds.files] == ["scan_0.bin", "scan_1.bin", "scan_2.bin"]
     np.zeros(10, "<f4").tofile(tmp_path / "times_1.bin")
-    np.zeros(10, "<f4").tofile(tmp_path / "times_2.bin")  # now two schemes of 3 files each
-    with pytest.raises(DataFormatError, match=r"named in several ways \((scan|times)_N.bin, (scan|times)_N.bin\)"):
+    np.zeros(10, "<f4").tofile(tmp_path / "times_2.bin")  # 3 per-point time files are still no scans
+    with pytest.warns(DataWarning, match="times_0.bin"):
+        assert [p.name for p in KittiDataset(path=str(tmp_path)).files] == ["scan_0.bin", "scan_1.bin", "scan_2.bin"]
+    for i in range(3):
+        np.zeros(10, "<f4").tofile(tmp_path / f"other_{i}.bin")  # now two schemes of 3 scans each
+    with pytest.raises(DataFormatError, match=r"named in several ways \((scan|other)_N.bin, (scan|other)_N.bin\)"):
         KittiDataset(path=str(tmp_path))
 
 

@@ -1,0 +1,206 @@
+"""Guessing a beam table from the elevations alone (no ring field, no usable point order).
+
+Downsampled keyframes, deskewed or filtered scans keep only the points' directions. Seen from
+the sensor origin a laser's elevation wobbles with range (its origin is offset from the axis: on
+KITTI's HDL-64E by as much as the beams are apart), so the histogram's peaks are not the beams:
+it found 81 "beams" on a shuffled KITTI scan, 105 on an OS1-64. Three rules, the first that
+holds decides:
+
+1. **a preset fits** (:data:`~lwbench.sensor_specs.SENSOR_SPECS`): after a common elevation
+   offset of at most :data:`MAX_OFFSET_DEG` (mounting, calibration) and per-beam moves of at most
+   :data:`MAX_BEAM_SHIFT` of the local spacing (a unit's own calibration), the returns
+   concentrate on the preset's beams -- their RMS distance to the nearest beam at most
+   :data:`MAX_SPREAD` spacings (uniform elevations give 0.29), at most :data:`MAX_OUTSIDE` of
+   them outside the table, and at least :data:`MIN_OCCUPIED` of the beams in the scan's span
+   with returns (a finer table with empty beams between the data's does not fit). The snapped
+   table is the preset's, moved to where this scan's returns are; all its beams are kept, also
+   those the scan never saw (sky);
+2. **the histogram's significant peaks**: a peak counts when it stands out of its valley by
+   three times the counting noise and by a quarter of its height, and peaks closer than the
+   data's own peak width are one (the count is bounded by what the elevation resolution of the
+   data supports -- fewer beams than the sensor has when its beams overlap, never spurious ones);
+3. **no beam structure** (a rotating 2-D laser, a scanner with a continuous vertical pattern):
+   a uniform grid as fine as the data is dense -- about one return a cell.
+
+All three are guesses: the estimate (:mod:`lwbench.beam_table`) is not ``exact`` and the
+loaders flag the dataset (``sensor_guessed``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from lwbench.beam_order import Reading, firings_per_turn
+from lwbench.sensor_specs import MAX_BEAMS, MAX_RAYS, MIN_AZIMUTH_STEP_DEG, SENSOR_SPECS
+
+__all__ = [
+    "Guess", "METHOD_PRESET", "METHOD_HISTOGRAM", "METHOD_UNIFORM", "guess_beams",
+    "MAX_OFFSET_DEG", "MAX_BEAM_SHIFT", "MAX_SPREAD", "MAX_OUTSIDE", "MIN_OCCUPIED",
+]
+
+METHOD_PRESET = "preset table fitted to the elevations"
+METHOD_HISTOGRAM = "elevation histogram"
+METHOD_UNIFORM = "uniform grid (no beam structure)"
+MAX_OFFSET_DEG = 1.5  # common offset of a preset's table (mount pitch, a unit's calibration)
+_OFFSET_STEP_DEG = 0.02
+MAX_BEAM_SHIFT = 0.35  # per-beam move, in local beam spacings
+MAX_SPREAD = 0.2  # RMS distance of the returns to the nearest beam, in spacings (uniform: 0.289)
+MAX_OUTSIDE = 0.02  # share of returns more than half a spacing outside the table
+MIN_OCCUPIED = 0.9  # share of the beams in the scan's span that hold returns
+_FINE_BIN_DEG = 0.01
+_MIN_PEAK_SIGMAS = 3.0
+_MIN_PEAK_CONTRAST = 0.25
+
+
+@dataclass(frozen=True)
+class Guess:
+    reading: Reading
+    method: str
+    rule: str
+
+
+def _fractional_index(x: np.ndarray, table: np.ndarray) -> np.ndarray:
+    """Elevation as a fractional beam index, linear in the table (edge spacing outside it)."""
+    u = np.interp(x, table, np.arange(len(table), dtype=np.float64))
+    lo_gap, hi_gap = table[1] - table[0], table[-1] - table[-2]
+    u = np.where(x < table[0], (x - table[0]) / lo_gap, u)
+    return np.where(x > table[-1], len(table) - 1 + (x - table[-1]) / hi_gap, u)
+
+
+@dataclass(frozen=True)
+class _Fit:
+    preset: str
+    table: np.ndarray
+    offset: float
+    spread: float
+    outside: float
+    occupied: float
+    in_span: int
+
+    @property
+    def fits(self) -> bool:
+        return (self.spread <= MAX_SPREAD and self.outside <= MAX_OUTSIDE and self.occupied >= MIN_OCCUPIED
+                and self.in_span >= len(self.table) / 2)
+
+
+def _fit_preset(name: str, centres: np.ndarray, hist: np.ndarray) -> _Fit:
+    table = np.asarray(SENSOR_SPECS[name].elevations_deg, dtype=np.float64)
+    total = hist.sum()
+    offsets = np.arange(-MAX_OFFSET_DEG, MAX_OFFSET_DEG + 1e-9, _OFFSET_STEP_DEG)
+    u = _fractional_index(centres[None, :] - offsets[:, None], table)
+    score = np.where((u < -0.5) | (u > len(table) - 0.5), -1.0, np.cos(2 * np.pi * (u - np.round(u))))
+    offset = float(offsets[int(np.argmax(score @ hist))])
+    moved = table + offset
+    gaps = np.diff(table)
+    # A beam moves at most MAX_BEAM_SHIFT of its nearer neighbour's gap: beams never cross.
+    spacing = np.minimum(np.r_[gaps[:1], gaps], np.r_[gaps, gaps[-1:]]) if len(table) > 1 else np.ones(1)
+    for _ in range(2):  # move each beam to its returns' mean, within MAX_BEAM_SHIFT spacings
+        u = _fractional_index(centres, moved)
+        k = np.clip(np.round(u).astype(np.int64), 0, len(table) - 1)
+        near = np.abs(u - k) < 0.5
+        w = np.bincount(k[near], weights=hist[near], minlength=len(table))
+        mean = np.bincount(k[near], weights=(hist * (centres - moved[k]))[near], minlength=len(table))
+        shift = np.where(w > 0, mean / np.maximum(w, 1e-12), 0.0)
+        moved = table + offset + np.clip(shift + (moved - table - offset), -MAX_BEAM_SHIFT * spacing,
+                                         MAX_BEAM_SHIFT * spacing)
+    u = _fractional_index(centres, moved)
+    rho = u - np.round(u)
+    inside = (u >= -0.5) & (u <= len(table) - 0.5)
+    spread = float(np.sqrt(np.sum(hist[inside] * rho[inside] ** 2) / max(hist[inside].sum(), 1e-12)))
+    k = np.clip(np.round(u).astype(np.int64), 0, len(table) - 1)
+    core = np.bincount(k[inside & (np.abs(rho) < 0.25)], weights=hist[inside & (np.abs(rho) < 0.25)],
+                       minlength=len(table))
+    seen = np.flatnonzero(np.bincount(k[inside], weights=hist[inside], minlength=len(table)) > 0.001 * total)
+    lo, hi = (int(seen.min()), int(seen.max())) if len(seen) else (0, -1)
+    span = core[lo : hi + 1]
+    occupied = float(np.mean(span >= 0.2 * np.median(span))) if len(span) else 0.0
+    return _Fit(name, moved, offset, spread, float(hist[~inside].sum() / total), occupied, hi - lo + 1)
+
+
+def _snap(el: np.ndarray) -> tuple[_Fit | None, list[_Fit]]:
+    edges = np.arange(el.min() - 2 * _FINE_BIN_DEG, el.max() + 3 * _FINE_BIN_DEG, _FINE_BIN_DEG)
+    hist, edges = np.histogram(el, bins=edges)
+    centres = (edges[:-1] + edges[1:]) / 2
+    keep = hist > 0
+    centres, hist = centres[keep], hist[keep].astype(np.float64)
+    fits = sorted((_fit_preset(name, centres, hist) for name in SENSOR_SPECS), key=lambda f: f.spread)
+    good = [f for f in fits if f.fits]
+    if not good:
+        return None, fits
+    best = good[0]
+    rivals = [f for f in good[1:] if len(f.table) != len(best.table) and f.spread < 1.1 * best.spread]
+    return (None if rivals else best), fits
+
+
+def _peaks(el: np.ndarray, bin_deg: float) -> tuple[np.ndarray, float]:
+    """Significant peaks of the elevation histogram (deg) and the median peak width (deg)."""
+    from scipy.signal import find_peaks, peak_widths
+
+    lo, hi = el.min() - 10 * bin_deg, el.max() + 10 * bin_deg
+    hist, edges = np.histogram(el, bins=max(8, int((hi - lo) / bin_deg)), range=(lo, hi))
+    smooth = np.convolve(hist, np.ones(3) / 3, mode="same")
+    centres = (edges[:-1] + edges[1:]) / 2
+    distance = max(1, int(0.25 / bin_deg))
+    for _ in range(4):  # merge peaks closer than the data resolves, until the count is stable
+        peaks, props = find_peaks(smooth, distance=distance, prominence=0.0)
+        height = smooth[peaks]
+        noise = np.sqrt(np.maximum(height, 1.0) / 3.0)  # Poisson noise of a 3-bin mean
+        strong = (props["prominences"] >= _MIN_PEAK_SIGMAS * noise) & (props["prominences"] >= _MIN_PEAK_CONTRAST
+                                                                          * height)
+        peaks = peaks[strong]
+        if len(peaks) == 0:
+            return np.zeros(0), 0.0
+        width = float(np.median(peak_widths(smooth, peaks, rel_height=0.5)[0])) * bin_deg
+        if int(width / bin_deg) <= distance:
+            break
+        distance = int(width / bin_deg)
+    return centres[peaks], width
+
+
+def _columns(az: np.ndarray, table: np.ndarray, el: np.ndarray, cells_a_return: float) -> int:
+    """Firings a turn from the returns nearest each beam, at most ``cells_a_return`` cells a
+    return: where the beams are not resolved a "beam" holds several rings, whose points would
+    otherwise count as firings."""
+    labels = np.clip(np.round(_fractional_index(el, table)).astype(np.int64), 0, len(table) - 1)
+    firings = firings_per_turn(az, labels, len(table))
+    bound = math.ceil(cells_a_return * len(el) / len(table))
+    return max(1, min(firings, bound, int(360 / MIN_AZIMUTH_STEP_DEG), MAX_RAYS // len(table)))
+
+
+def _uniform(az: np.ndarray, el: np.ndarray) -> Guess:
+    lo, hi = (float(v) for v in np.quantile(el, [0.001, 0.999]))
+    covered = max(1.0, float(np.unique(np.floor(np.mod(az, 360.0))).size))
+    spacing = math.sqrt(max(hi - lo, 0.1) * covered / len(el))  # about one return a cell
+    beams = int(np.clip(round((hi - lo) / spacing) + 1, 2, MAX_BEAMS))
+    columns = int(np.clip(round(360.0 / spacing), 1, min(360 / MIN_AZIMUTH_STEP_DEG, MAX_RAYS // beams)))
+    table = np.linspace(lo, hi, beams)
+    rule = (f"no beam structure in the elevations (no significant histogram peak): a uniform "
+            f"{beams} x {columns} grid, {360.0 / columns:.3f} deg, about one return a cell")
+    return Guess(Reading(table, 360.0 / columns, {"angular density (deg)": round(spacing, 4)}), METHOD_UNIFORM, rule)
+
+
+def guess_beams(az: np.ndarray, el: np.ndarray, r: np.ndarray, bin_deg: float = 0.02) -> Guess:
+    """A beam table and azimuth step for returns with no ring labels (rules in the docstring)."""
+    del r  # the rules use directions only; kept in the signature for range-aware rules
+    best, fits = _snap(el)
+    tried = {f.preset: [round(f.spread, 3), round(f.occupied, 2)] for f in fits[:3]}
+    if best is not None:
+        columns = _columns(az, best.table, el, 2.0)
+        stats = {"preset": best.preset, "offset (deg)": round(best.offset, 3), "spread (spacings)":
+                 round(best.spread, 3), "closest presets [spread, occupied]": tried}
+        rule = (f"snapped to preset {best.preset}: returns within {best.spread:.2f} spacings (RMS) of its table "
+                f"moved by {best.offset:+.2f} deg (tolerance: spread <= {MAX_SPREAD}, offset <= {MAX_OFFSET_DEG} "
+                f"deg, beams moved <= {MAX_BEAM_SHIFT} spacings)")
+        return Guess(Reading(best.table, 360.0 / columns, stats), METHOD_PRESET, rule)
+    peaks, width = _peaks(el, bin_deg)
+    if len(peaks) < 2:
+        return _uniform(az, el)
+    columns = _columns(az, peaks, el, 1.0)
+    stats = {"significant peaks": len(peaks), "peak width (deg)": round(width, 3),
+             "closest presets [spread, occupied]": tried}
+    rule = (f"elevation histogram: {len(peaks)} significant peaks, no preset within tolerance (the count is "
+            f"bounded by the data's elevation resolution, {width:.2f} deg)")
+    return Guess(Reading(np.sort(peaks), 360.0 / columns, stats), METHOD_HISTOGRAM, rule)
