@@ -3,8 +3,9 @@
 Downsampled keyframes, deskewed or filtered scans keep only the points' directions. Seen from
 the sensor origin a laser's elevation wobbles with range (its origin is offset from the axis: on
 KITTI's HDL-64E by as much as the beams are apart), so the histogram's peaks are not the beams:
-it found 81 "beams" on a shuffled KITTI scan, 105 on an OS1-64. Three rules, the first that
-holds decides:
+it found 81 "beams" on a shuffled KITTI scan, 105 on an OS1-64. So the elevations are first
+put back into the sensor's frame where the scan's frame is tilted against it or its lasers sit
+above its origin (:func:`level`), then three rules, the first that holds decides:
 
 1. **a preset fits** (:data:`~lwbench.sensor_specs.SENSOR_SPECS`): after a common elevation
    offset of at most :data:`MAX_OFFSET_DEG` (mounting, calibration) and per-beam moves of at most
@@ -12,15 +13,18 @@ holds decides:
    concentrate on the preset's beams -- their RMS distance to the nearest beam at most
    :data:`MAX_SPREAD` spacings (uniform elevations give 0.29), at most :data:`MAX_OUTSIDE` of
    them outside the table, and at least :data:`MIN_OCCUPIED` of the beams in the scan's span
-   with returns (a finer table with empty beams between the data's does not fit). The snapped
+   with returns at their centre (a finer table, with beams between the data's, does not fit).
+   Of the presets that fit, the one with the fewest beams is taken; two that fit as well with as
+   many beams are no snap. The snapped
    table is the preset's, moved to where this scan's returns are; all its beams are kept, also
    those the scan never saw (sky);
 2. **the histogram's significant peaks**: a peak counts when it stands out of its valley by
    three times the counting noise and by a quarter of its height, and peaks closer than the
    data's own peak width are one (the count is bounded by what the elevation resolution of the
    data supports -- fewer beams than the sensor has when its beams overlap, never spurious ones);
-3. **no beam structure** (a rotating 2-D laser, a scanner with a continuous vertical pattern):
-   a uniform grid as fine as the data is dense -- about one return a cell.
+3. **no beam table** (no significant peak, or more than :data:`~lwbench.sensor_specs.MAX_BEAMS`:
+   a rotating 2-D laser, a scanner with a continuous vertical pattern): a uniform grid as fine as
+   the data is dense -- about one return a cell, at most ``MAX_BEAMS`` rows.
 
 All three are guesses: the estimate (:mod:`lwbench.beam_table`) is not ``exact`` and the
 loaders flag the dataset (``sensor_guessed``).
@@ -49,7 +53,11 @@ _OFFSET_STEP_DEG = 0.02
 MAX_BEAM_SHIFT = 0.35  # per-beam move, in local beam spacings
 MAX_SPREAD = 0.2  # RMS distance of the returns to the nearest beam, in spacings (uniform: 0.289)
 MAX_OUTSIDE = 0.02  # share of returns more than half a spacing outside the table
-MIN_OCCUPIED = 0.9  # share of the beams in the scan's span that hold returns
+MIN_OCCUPIED = 0.9  # share of the beams in the scan's span that hold returns at their centre
+_MIN_CORE_SHARE = 0.6  # of a beam's cell, the share within a quarter spacing of it (uniform: 0.5)
+MAX_TILT_DEG = 2.0  # tilt of the scan's frame against the sensor's axis that level() undoes
+MAX_LASER_HEIGHT_M = 0.3  # height of the lasers' origin over the frame's that level() undoes
+_MIN_SHARPENING = 1.15
 _FINE_BIN_DEG = 0.01
 _MIN_PEAK_SIGMAS = 3.0
 _MIN_PEAK_CONTRAST = 0.25
@@ -60,6 +68,53 @@ class Guess:
     reading: Reading
     method: str
     rule: str
+
+
+def _sharpness(el: np.ndarray) -> float:
+    """How peaked the elevation histogram is (sum of squared bin shares, 0.02 deg bins)."""
+    hist = np.bincount(np.floor((el - el.min()) / 0.02).astype(np.int64)).astype(np.float64)
+    return float(np.sum(hist**2) / len(el) ** 2)
+
+
+def level(az: np.ndarray, el: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, dict[str, float]]:
+    """The elevations as the sensor saw them, when the scan's frame is not the sensor's: a frame
+    tilted against the sensor's axis (a deskewed or levelled scan) moves each beam up and down
+    with azimuth -- a 0.2 deg tilt splits every beam of an OS1-64 in two histogram peaks -- and
+    lasers whose origin sits ``h`` above the frame's make each beam's elevation drift with range
+    (KITTI: h ~0.2 m). Tilt (up to :data:`MAX_TILT_DEG`) and ``h`` (up to :data:`MAX_LASER_HEIGHT_M`)
+    are the ones that make the histogram sharpest; they are kept only if they sharpen it by
+    :data:`_MIN_SHARPENING` at least, so a scan in its sensor's frame is left as it is."""
+    a = np.radians(az)
+    cos_a, sin_a = np.cos(a), np.sin(a)
+    rho = r * np.cos(np.radians(el))
+    z = r * np.sin(np.radians(el))
+    base = _sharpness(el)
+    best = (base, 0.0, 0.0, 0.0)
+
+    def elevations(tx: float, ty: float, h: float) -> np.ndarray:
+        return np.degrees(np.arctan2(z - h, rho)) - tx * cos_a - ty * sin_a
+
+    for _ in range(2):
+        _, tx, ty, h = best
+        for step in (0.5, 0.1, 0.02):  # tilt: coarse to fine around the best so far
+            grid = np.arange(-4, 5) * step
+            trials = [(tx + dx, ty + dy) for dx in grid for dy in grid
+                      if abs(tx + dx) <= MAX_TILT_DEG and abs(ty + dy) <= MAX_TILT_DEG]
+            e0 = np.degrees(np.arctan2(z - h, rho))
+            scores = [(_sharpness(e0 - x * cos_a - y * sin_a), x, y) for x, y in trials]
+            score, tx, ty = max(scores)
+            if score > best[0]:
+                best = (score, tx, ty, h)
+        _, tx, ty, h = best
+        heights = np.arange(-MAX_LASER_HEIGHT_M, MAX_LASER_HEIGHT_M + 1e-9, 0.025)
+        score, h = max((_sharpness(elevations(tx, ty, hh)), hh) for hh in heights)
+        if score > best[0]:
+            best = (score, tx, ty, h)
+    score, tx, ty, h = best
+    if score < _MIN_SHARPENING * base:
+        return el, {}
+    return elevations(tx, ty, h), {"tilt (deg)": [round(float(tx), 2), round(float(ty), 2)],
+                                   "laser height (m)": round(float(h), 3)}
 
 
 def _fractional_index(x: np.ndarray, table: np.ndarray) -> np.ndarray:
@@ -87,7 +142,7 @@ class _Fit:
 
 
 def _fit_preset(name: str, centres: np.ndarray, hist: np.ndarray) -> _Fit:
-    table = np.asarray(SENSOR_SPECS[name].elevations_deg, dtype=np.float64)
+    table = np.sort(np.asarray(SENSOR_SPECS[name].elevations_deg, dtype=np.float64))
     total = hist.sum()
     offsets = np.arange(-MAX_OFFSET_DEG, MAX_OFFSET_DEG + 1e-9, _OFFSET_STEP_DEG)
     u = _fractional_index(centres[None, :] - offsets[:, None], table)
@@ -111,12 +166,15 @@ def _fit_preset(name: str, centres: np.ndarray, hist: np.ndarray) -> _Fit:
     inside = (u >= -0.5) & (u <= len(table) - 0.5)
     spread = float(np.sqrt(np.sum(hist[inside] * rho[inside] ** 2) / max(hist[inside].sum(), 1e-12)))
     k = np.clip(np.round(u).astype(np.int64), 0, len(table) - 1)
-    core = np.bincount(k[inside & (np.abs(rho) < 0.25)], weights=hist[inside & (np.abs(rho) < 0.25)],
-                       minlength=len(table))
-    seen = np.flatnonzero(np.bincount(k[inside], weights=hist[inside], minlength=len(table)) > 0.001 * total)
+    cell = np.bincount(k[inside], weights=hist[inside], minlength=len(table))
+    central = inside & (np.abs(rho) < 0.25)
+    core = np.bincount(k[central], weights=hist[central], minlength=len(table))
+    # A beam is there when its cell holds returns and they sit at its centre (a beam that is not
+    # there holds only the tails of its neighbours'; uniform elevations put half at the centre).
+    seen = np.flatnonzero(cell > 0.001 * total)
     lo, hi = (int(seen.min()), int(seen.max())) if len(seen) else (0, -1)
-    span = core[lo : hi + 1]
-    occupied = float(np.mean(span >= 0.2 * np.median(span))) if len(span) else 0.0
+    there = (cell > 0.0002 * total) & (core >= _MIN_CORE_SHARE * cell)
+    occupied = float(np.mean(there[lo : hi + 1])) if hi >= lo else 0.0
     return _Fit(name, moved, offset, spread, float(hist[~inside].sum() / total), occupied, hi - lo + 1)
 
 
@@ -127,11 +185,13 @@ def _snap(el: np.ndarray) -> tuple[_Fit | None, list[_Fit]]:
     keep = hist > 0
     centres, hist = centres[keep], hist[keep].astype(np.float64)
     fits = sorted((_fit_preset(name, centres, hist) for name in SENSOR_SPECS), key=lambda f: f.spread)
-    good = [f for f in fits if f.fits]
+    # The coarsest table that fits: a finer one also "fits" returns blended between beams (voxel
+    # averages), and a beam the data does not need is a beam the sensor need not have.
+    good = sorted((f for f in fits if f.fits), key=lambda f: (len(f.table), f.spread))
     if not good:
         return None, fits
     best = good[0]
-    rivals = [f for f in good[1:] if len(f.table) != len(best.table) and f.spread < 1.1 * best.spread]
+    rivals = [f for f in good[1:] if len(f.table) == len(best.table) and f.spread < 1.1 * best.spread]
     return (None if rivals else best), fits
 
 
@@ -161,46 +221,67 @@ def _peaks(el: np.ndarray, bin_deg: float) -> tuple[np.ndarray, float]:
 
 
 def _columns(az: np.ndarray, table: np.ndarray, el: np.ndarray, cells_a_return: float) -> int:
-    """Firings a turn from the returns nearest each beam, at most ``cells_a_return`` cells a
-    return: where the beams are not resolved a "beam" holds several rings, whose points would
-    otherwise count as firings."""
-    labels = np.clip(np.round(_fractional_index(el, table)).astype(np.int64), 0, len(table) - 1)
-    firings = firings_per_turn(az, labels, len(table))
-    bound = math.ceil(cells_a_return * len(el) / len(table))
-    return max(1, min(firings, bound, int(360 / MIN_AZIMUTH_STEP_DEG), MAX_RAYS // len(table)))
+    """Firings a turn from the returns within a fifth of a spacing of each beam (nearer its
+    neighbours they may be a neighbour's, at another azimuth phase), at most ``cells_a_return``
+    cells a return over the azimuths the scan covers: where the beams are not resolved a "beam"
+    holds several rings, whose points would otherwise count as firings."""
+    u = _fractional_index(el, table)
+    k = np.clip(np.round(u).astype(np.int64), 0, len(table) - 1)
+    core = np.abs(u - k) < 0.2
+    firings = firings_per_turn(az[core], k[core], len(table))
+    covered = max(1.0, float(np.unique(np.floor(np.mod(az, 360.0))).size))
+    bound = math.ceil(cells_a_return * len(el) / len(table) * 360.0 / covered)
+    return max(1, min(firings or bound, bound, int(360 / MIN_AZIMUTH_STEP_DEG), MAX_RAYS // len(table)))
 
 
-def _uniform(az: np.ndarray, el: np.ndarray) -> Guess:
+def _uniform(az: np.ndarray, el: np.ndarray, peaks: int) -> Guess:
     lo, hi = (float(v) for v in np.quantile(el, [0.001, 0.999]))
     covered = max(1.0, float(np.unique(np.floor(np.mod(az, 360.0))).size))
     spacing = math.sqrt(max(hi - lo, 0.1) * covered / len(el))  # about one return a cell
     beams = int(np.clip(round((hi - lo) / spacing) + 1, 2, MAX_BEAMS))
     columns = int(np.clip(round(360.0 / spacing), 1, min(360 / MIN_AZIMUTH_STEP_DEG, MAX_RAYS // beams)))
     table = np.linspace(lo, hi, beams)
-    rule = (f"no beam structure in the elevations (no significant histogram peak): a uniform "
-            f"{beams} x {columns} grid, {360.0 / columns:.3f} deg, about one return a cell")
+    why = "no significant histogram peak" if peaks < 2 else f"{peaks} histogram peaks, more than {MAX_BEAMS} beams"
+    rule = (f"no beam table in the elevations ({why}): a uniform {beams} x {columns} grid, "
+            f"{360.0 / columns:.3f} deg, about one return a cell")
     return Guess(Reading(table, 360.0 / columns, {"angular density (deg)": round(spacing, 4)}), METHOD_UNIFORM, rule)
+
+
+def _apparent(table: np.ndarray, el_sensor: np.ndarray, el_data: np.ndarray) -> np.ndarray:
+    """The table as the scan's frame sees it: each beam's median elevation in the data over the
+    returns nearest it in the sensor's frame (a beam with none: its place, moved by the median
+    difference between the two frames)."""
+    labels = np.clip(np.round(_fractional_index(el_sensor, table)).astype(np.int64), 0, len(table) - 1)
+    out = table + float(np.median(el_data - el_sensor))
+    order = np.argsort(labels, kind="stable")
+    bounds = np.searchsorted(labels[order], np.arange(len(table) + 1))
+    for k in range(len(table)):
+        if bounds[k + 1] > bounds[k]:
+            out[k] = np.median(el_data[order[bounds[k] : bounds[k + 1]]])
+    return np.sort(out)
 
 
 def guess_beams(az: np.ndarray, el: np.ndarray, r: np.ndarray, bin_deg: float = 0.02) -> Guess:
     """A beam table and azimuth step for returns with no ring labels (rules in the docstring)."""
-    del r  # the rules use directions only; kept in the signature for range-aware rules
-    best, fits = _snap(el)
+    el_sensor, frame = level(az, el, r)
+    best, fits = _snap(el_sensor)
     tried = {f.preset: [round(f.spread, 3), round(f.occupied, 2)] for f in fits[:3]}
     if best is not None:
-        columns = _columns(az, best.table, el, 2.0)
+        columns = _columns(az, best.table, el_sensor, 2.0)
         stats = {"preset": best.preset, "offset (deg)": round(best.offset, 3), "spread (spacings)":
-                 round(best.spread, 3), "closest presets [spread, occupied]": tried}
+                 round(best.spread, 3), **frame, "closest presets [spread, occupied]": tried}
         rule = (f"snapped to preset {best.preset}: returns within {best.spread:.2f} spacings (RMS) of its table "
                 f"moved by {best.offset:+.2f} deg (tolerance: spread <= {MAX_SPREAD}, offset <= {MAX_OFFSET_DEG} "
                 f"deg, beams moved <= {MAX_BEAM_SHIFT} spacings)")
-        return Guess(Reading(best.table, 360.0 / columns, stats), METHOD_PRESET, rule)
-    peaks, width = _peaks(el, bin_deg)
-    if len(peaks) < 2:
-        return _uniform(az, el)
-    columns = _columns(az, peaks, el, 1.0)
-    stats = {"significant peaks": len(peaks), "peak width (deg)": round(width, 3),
+        table = _apparent(best.table, el_sensor, el) if frame else best.table
+        return Guess(Reading(table, 360.0 / columns, stats), METHOD_PRESET, rule)
+    peaks, width = _peaks(el_sensor, bin_deg)
+    if not 2 <= len(peaks) <= MAX_BEAMS:  # no beams, or more than a spinning LiDAR has: a grid
+        return _uniform(az, el, len(peaks))
+    columns = _columns(az, peaks, el_sensor, 1.0)
+    stats = {"significant peaks": len(peaks), "peak width (deg)": round(width, 3), **frame,
              "closest presets [spread, occupied]": tried}
     rule = (f"elevation histogram: {len(peaks)} significant peaks, no preset within tolerance (the count is "
             f"bounded by the data's elevation resolution, {width:.2f} deg)")
-    return Guess(Reading(np.sort(peaks), 360.0 / columns, stats), METHOD_HISTOGRAM, rule)
+    table = _apparent(np.sort(peaks), el_sensor, el) if frame else np.sort(peaks)
+    return Guess(Reading(table, 360.0 / columns, stats), METHOD_HISTOGRAM, rule)

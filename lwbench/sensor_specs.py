@@ -77,7 +77,7 @@ def _hdl64e_table() -> tuple[float, ...]:
     # lower block of 32 from -8.83 to -24.33 deg (1/2 deg apart), per the Velodyne manual.
     upper = np.linspace(2.0, -8.33, 32)
     lower = np.linspace(-8.83, -24.33, 32)
-    return tuple(float(e) for e in np.concatenate([upper, lower]))
+    return _table(np.concatenate([upper, lower]))
 
 
 # Velodyne's VLP-32C laser table (VLP-32C user manual; the same angles as the velodyne ROS
