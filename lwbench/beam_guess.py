@@ -19,9 +19,10 @@ above its origin (:func:`level`), then three rules, the first that holds decides
    table is the preset's, moved to where this scan's returns are; all its beams are kept, also
    those the scan never saw (sky);
 2. **the histogram's significant peaks**: a peak counts when it stands out of its valley by
-   three times the counting noise and by a quarter of its height, and peaks closer than the
-   data's own peak width are one (the count is bounded by what the elevation resolution of the
-   data supports -- fewer beams than the sensor has when its beams overlap, never spurious ones);
+   three times the counting noise and by a quarter of its height; peaks closer than the data's
+   own peak width are one, and so are neighbouring peaks whose returns rarely share an azimuth
+   (one beam, its elevation drifting with range). The count is bounded by what the elevation
+   resolution of the data supports -- fewer beams than the sensor has when its beams overlap;
 3. **no beam table** (no significant peak, or more than :data:`~lwbench.sensor_specs.MAX_BEAMS`:
    a rotating 2-D laser, a scanner with a continuous vertical pattern): a uniform grid as fine as
    the data is dense -- about one return a cell, at most ``MAX_BEAMS`` rows.
@@ -60,6 +61,7 @@ MAX_LASER_HEIGHT_M = 0.3  # height of the lasers' origin over the frame's that l
 _MIN_SHARPENING = 1.15
 _FINE_BIN_DEG = 0.01
 _MIN_PEAK_SIGMAS = 3.0
+_MIN_SHARED_AZIMUTHS = 0.7  # of the 1-deg azimuth bins of the sparser of two neighbouring peaks
 _MIN_PEAK_CONTRAST = 0.25
 
 
@@ -220,6 +222,28 @@ def _peaks(el: np.ndarray, bin_deg: float) -> tuple[np.ndarray, float]:
     return centres[peaks], width
 
 
+def _merge_drifting(peaks: np.ndarray, az: np.ndarray, el: np.ndarray) -> np.ndarray:
+    """Merge neighbouring peaks that are one beam whose elevation drifts with range: a beam has
+    one elevation at one azimuth, so two peaks whose returns rarely share an azimuth (one where
+    the beam hits the ground, one where a wall stops it nearer) are one beam. Real neighbouring
+    beams see the same ground and walls: most azimuths hold returns of both."""
+    peaks = np.sort(peaks)
+    bins = np.floor(np.mod(az, 360.0)).astype(np.int64)
+    while len(peaks) > 2:
+        labels = np.clip(np.round(_fractional_index(el, peaks)).astype(np.int64), 0, len(peaks) - 1)
+        seen = np.zeros((len(peaks), 360), dtype=bool)
+        seen[labels, bins] = True
+        counts = seen.sum(axis=1)
+        shared = (seen[:-1] & seen[1:]).sum(axis=1) / np.maximum(np.minimum(counts[:-1], counts[1:]), 1)
+        k = int(np.argmin(shared))
+        if shared[k] >= _MIN_SHARED_AZIMUTHS:
+            break
+        weight = np.bincount(labels, minlength=len(peaks)).astype(np.float64)
+        merged = (peaks[k] * weight[k] + peaks[k + 1] * weight[k + 1]) / max(weight[k] + weight[k + 1], 1.0)
+        peaks = np.r_[peaks[:k], merged, peaks[k + 2 :]]
+    return peaks
+
+
 def _columns(az: np.ndarray, table: np.ndarray, el: np.ndarray, cells_a_return: float) -> int:
     """Firings a turn from the returns within a fifth of a spacing of each beam (nearer its
     neighbours they may be a neighbour's, at another azimuth phase), at most ``cells_a_return``
@@ -276,6 +300,8 @@ def guess_beams(az: np.ndarray, el: np.ndarray, r: np.ndarray, bin_deg: float = 
         table = _apparent(best.table, el_sensor, el) if frame else best.table
         return Guess(Reading(table, 360.0 / columns, stats), METHOD_PRESET, rule)
     peaks, width = _peaks(el_sensor, bin_deg)
+    if 2 < len(peaks) <= MAX_BEAMS:
+        peaks = _merge_drifting(peaks, az, el_sensor)
     if not 2 <= len(peaks) <= MAX_BEAMS:  # no beams, or more than a spinning LiDAR has: a grid
         return _uniform(az, el, len(peaks))
     columns = _columns(az, peaks, el_sensor, 1.0)
