@@ -276,7 +276,7 @@ class RangeMetric(FrameMetric):
         n_q = int(q_return.sum())
         paired = partner >= 0
         diff = p_range[paired] - q_range[partner[paired]]
-        is_partner = np.zeros(n_q, dtype=bool)
+        is_partner = np.zeros(len(q_coords), dtype=bool)
         is_partner[partner[paired]] = True
         false = ~is_partner & ~near_p & q_return
         return {
