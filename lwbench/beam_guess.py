@@ -304,8 +304,13 @@ def guess_beams(az: np.ndarray, el: np.ndarray, r: np.ndarray, bin_deg: float = 
         peaks = _merge_drifting(peaks, az, el_sensor)
     if not 2 <= len(peaks) <= MAX_BEAMS:  # no beams, or more than a spinning LiDAR has: a grid
         return _uniform(az, el, len(peaks))
-    columns = _columns(az, peaks, el_sensor, 1.0)
-    stats = {"significant peaks": len(peaks), "peak width (deg)": round(width, 3), **frame,
+    # Where the peaks are tight the returns nearest each are one ring's; where they are not, a
+    # peak holds several rings and its firings are bounded by one cell a return.
+    u = _fractional_index(el_sensor, np.sort(peaks))
+    spread = float(np.sqrt(np.mean((u - np.round(u)) ** 2)))
+    columns = _columns(az, np.sort(peaks), el_sensor, 2.0 if spread <= MAX_SPREAD else 1.0)
+    stats = {"significant peaks": len(peaks), "peak width (deg)": round(width, 3),
+             "spread (spacings)": round(spread, 3), **frame,
              "closest presets [spread, occupied]": tried}
     rule = (f"elevation histogram: {len(peaks)} significant peaks, no preset within tolerance (the count is "
             f"bounded by the data's elevation resolution, {width:.2f} deg)")

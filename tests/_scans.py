@@ -127,7 +127,7 @@ def rotating_2d_laser_scan(
     centre = np.stack(np.broadcast_arrays(offset_m * -np.sin(phi), offset_m * np.cos(phi), 0 * phi), axis=-1)
     centre = np.broadcast_to(centre, (len(phi), len(beta), 3)).reshape(-1, 3)
     half = np.asarray(half_extent)
-    with np.errstate(divide="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore"):
         t = np.where(np.abs(dirs) > 1e-12, (np.sign(dirs) * half - centre) / dirs, np.inf).min(axis=1)
     pts = centre + dirs * (t * (1 + rng.normal(0, 0.002, len(t))))[:, None]
     return pts[rng.permutation(len(pts))].astype(np.float32)
