@@ -131,3 +131,24 @@ def rotating_2d_laser_scan(
         t = np.where(np.abs(dirs) > 1e-12, (np.sign(dirs) * half - centre) / dirs, np.inf).min(axis=1)
     pts = centre + dirs * (t * (1 + rng.normal(0, 0.002, len(t))))[:, None]
     return pts[rng.permutation(len(pts))].astype(np.float32)
+
+
+def shuffled(points: np.ndarray, seed: int = 0) -> np.ndarray:
+    """The points in random order: no ring- or firing-major reading left."""
+    return points[np.random.default_rng(seed).permutation(len(points))]
+
+
+def voxel_downsampled(points: np.ndarray, size: float) -> np.ndarray:
+    """Voxel-downsampled as public keyframe sets are (Open3D: one averaged point a voxel)."""
+    from lwbench import import_open3d
+
+    o3d = import_open3d()
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points.astype(np.float64)))
+    return np.asarray(cloud.voxel_down_sample(size).points, dtype=np.float32)
+
+
+def tilted(points: np.ndarray, deg: float) -> np.ndarray:
+    """The scan in a frame pitched by ``deg`` (as a deskewed scan in a levelled frame)."""
+    a = np.radians(deg)
+    rot = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+    return (points.astype(np.float64) @ rot.T).astype(np.float32)

@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from _scans import rotating_2d_laser_scan, street_scan, write_bin
+from _scans import rotating_2d_laser_scan, shuffled, street_scan, tilted, voxel_downsampled, write_bin
 
-from lwbench import SensorModel, get_sensor, import_open3d
+from lwbench import SensorModel, get_sensor
 from lwbench.beam_guess import MAX_SPREAD
 from lwbench.derive import (
     METHOD_HISTOGRAM,
@@ -25,24 +25,6 @@ from lwbench.sensor import MAX_BEAMS, MAX_RAYS
 HDL64E_10HZ = SensorModel("hdl64e-10hz", get_sensor("hdl64e").elevations_deg, 360 / 2083, 0.9, 120.0, 10.0)
 
 
-def _shuffled(points: np.ndarray, seed: int = 0) -> np.ndarray:
-    return points[np.random.default_rng(seed).permutation(len(points))]
-
-
-def _voxel(points: np.ndarray, size: float) -> np.ndarray:
-    """Voxel-downsampled as public keyframe sets are (one averaged point a voxel)."""
-    o3d = import_open3d()
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points.astype(np.float64)))
-    return np.asarray(cloud.voxel_down_sample(size).points, dtype=np.float32)
-
-
-def _tilted(points: np.ndarray, deg: float) -> np.ndarray:
-    """The scan in a frame pitched by ``deg`` (as a deskewed scan in a levelled frame)."""
-    a = np.radians(deg)
-    rot = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
-    return (points.astype(np.float64) @ rot.T).astype(np.float32)
-
-
 def _guess(points: np.ndarray):
     with pytest.warns(DataWarning, match="sensor model guessed"):
         d = derive_sensor(points)
@@ -53,7 +35,7 @@ def _guess(points: np.ndarray):
 @pytest.mark.parametrize("laser_height", [0.0, 0.2])
 def test_a_shuffled_hdl64e_street_snaps_to_its_64_beams(laser_height):
     # KITTI's lasers sit ~0.2 m above the frame's origin: each beam's elevation drifts with range.
-    pts = _shuffled(street_scan(HDL64E_10HZ, laser_height_m=laser_height, table_jitter_deg=0.1))
+    pts = shuffled(street_scan(HDL64E_10HZ, laser_height_m=laser_height, table_jitter_deg=0.1))
     d = _guess(pts)
     assert d.method == METHOD_PRESET and d.stats["spread (spacings)"] <= MAX_SPREAD
     assert "snapped to preset hdl64e" in d.rule and d.sensor.n_beams == 64
@@ -64,7 +46,7 @@ def test_a_shuffled_hdl64e_street_snaps_to_its_64_beams(laser_height):
 def test_a_voxel_downsampled_hdl64e_is_flagged_with_at_most_its_beams():
     # Voxel averages blend neighbouring beams: no preset fits within tolerance, and the histogram
     # gives no more beams than the data resolves (the old histogram: spurious extra peaks).
-    pts = _shuffled(_voxel(street_scan(HDL64E_10HZ, laser_height_m=0.2, table_jitter_deg=0.1), 0.2))
+    pts = shuffled(voxel_downsampled(street_scan(HDL64E_10HZ, laser_height_m=0.2, table_jitter_deg=0.1), 0.2))
     d = _guess(pts)
     assert d.method in (METHOD_PRESET, METHOD_HISTOGRAM)
     assert d.sensor.n_beams == 64 if d.method == METHOD_PRESET else 40 <= d.sensor.n_beams <= 64
@@ -77,7 +59,7 @@ def test_an_os1_64_tilted_or_not_snaps_to_64_beams_not_105(tilt):
     # 105 beams); the tilt is undone before matching.
     offsets = np.tile([3.0, 1.0, -1.0, -3.0], 16)
     pts = street_scan(get_sensor("os1-64"), table_jitter_deg=0.05, azimuth_offsets_deg=offsets, laser_height_m=0.03)
-    d = _guess(_shuffled(_tilted(pts, tilt)))
+    d = _guess(shuffled(tilted(pts, tilt)))
     assert d.method == METHOD_PRESET and "os1-64" in d.rule and d.sensor.n_beams == 64
     assert d.sensor.n_azimuth == pytest.approx(1024, rel=0.01)
     if tilt:
@@ -86,12 +68,12 @@ def test_an_os1_64_tilted_or_not_snaps_to_64_beams_not_105(tilt):
 
 def test_an_os1_64_voxel_keyframe_snaps_to_64_not_to_a_finer_table():
     pts = street_scan(get_sensor("os1-64"), table_jitter_deg=0.05)
-    d = _guess(_shuffled(_voxel(_tilted(pts, 0.3), 0.2)))
+    d = _guess(shuffled(voxel_downsampled(tilted(pts, 0.3), 0.2)))
     assert d.method == METHOD_PRESET and d.sensor.n_beams == 64
 
 
 def test_a_short_range_pandarqt_snaps_to_its_non_uniform_table():
-    d = _guess(_shuffled(street_scan(get_sensor("pandarqt"), height=0.5)))
+    d = _guess(shuffled(street_scan(get_sensor("pandarqt"), height=0.5)))
     assert d.method == METHOD_PRESET and "pandarqt" in d.rule and d.sensor.n_beams == 64
     assert d.sensor.elevations_deg[0] == pytest.approx(-52.121, abs=0.01)
 
@@ -106,13 +88,13 @@ def test_a_rotating_2d_laser_gets_a_bounded_grid_not_hundreds_of_beams():
 
 def test_a_sensor_no_preset_describes_is_not_snapped_to_a_wrong_one():
     s = SensorModel("forty", tuple(np.linspace(-20, 20, 40)), 0.2, 0.5, 100.0, 10.0)
-    d = _guess(_shuffled(street_scan(s)))
+    d = _guess(shuffled(street_scan(s)))
     assert d.method == METHOD_HISTOGRAM and d.sensor.n_beams == 40
     np.testing.assert_allclose(d.sensor.elevations_deg, s.elevations_deg, atol=0.05)
 
 
 def test_the_dataset_says_its_sensor_was_guessed(tmp_path):
-    pts = _shuffled(street_scan(get_sensor("os1-64")))
+    pts = shuffled(street_scan(get_sensor("os1-64")))
     write_bin(tmp_path / "000000.bin", pts, np.ones(len(pts), np.float32))
     with pytest.warns(DataWarning, match="guessed"):
         ds = KittiDataset(path=str(tmp_path))
@@ -141,7 +123,7 @@ def test_real_scans_shuffled_and_downsampled_are_snapped_or_flagged(real_data):
     }
     for name, (read, beams) in cases.items():
         pts = read(real_data / name).points
-        for variant in (_shuffled(pts), _shuffled(_voxel(pts, 0.2))):
+        for variant in (shuffled(pts), shuffled(voxel_downsampled(pts, 0.2))):
             d = _guess(variant)
             if d.method == METHOD_PRESET:
                 assert d.sensor.n_beams == beams, (name, d.rule)
@@ -152,15 +134,15 @@ def test_real_scans_shuffled_and_downsampled_are_snapped_or_flagged(real_data):
 
 def test_the_real_pandar64_and_hdl32_snap_to_their_presets(real_data):
     pcd = read_point_file(real_data / "lidar64_static_pcd" / "2021-10-26-16-21-29-468.pcd").points
-    d = _guess(_shuffled(pcd))
+    d = _guess(shuffled(pcd))
     assert "snapped to preset pandar64" in d.rule and d.sensor.n_beams == 64
     hdl = read_point_file(real_data / "hdl32_pair" / "source.pcd").points
-    d = _guess(_shuffled(_voxel(hdl, 0.2)))
+    d = _guess(shuffled(voxel_downsampled(hdl, 0.2)))
     assert "snapped to preset hdl32e" in d.rule and d.sensor.n_beams == 32
 
 
 def test_a_real_voxel_keyframe_folder_is_flagged_on_the_dataset(real_data, tmp_path):
-    pts = _shuffled(_voxel(read_kitti_bin(real_data / "kitti00_frames0-1" / "000000.bin").points, 0.2))
+    pts = shuffled(voxel_downsampled(read_kitti_bin(real_data / "kitti00_frames0-1" / "000000.bin").points, 0.2))
     pts.astype("<f4").tofile(tmp_path / "000000.bin")
     with pytest.warns(DataWarning, match="guessed"):
         ds = PointFileDataset(path=str(tmp_path / "000000.bin"))

@@ -25,26 +25,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 
-def _shuffled(points: np.ndarray) -> np.ndarray:
-    return points[np.random.default_rng(0).permutation(len(points))]
-
-
-def _voxel(points: np.ndarray, size: float) -> np.ndarray:
-    from lwbench import import_open3d
-
-    o3d = import_open3d()
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points.astype(np.float64)))
-    return np.asarray(cloud.voxel_down_sample(size).points, dtype=np.float32)
-
-
-def _tilted(points: np.ndarray, deg: float) -> np.ndarray:
-    a = np.radians(deg)
-    rot = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
-    return (points.astype(np.float64) @ rot.T).astype(np.float32)
-
-
 def make(out: Path, real: Path | None) -> None:
-    from _scans import rotating_2d_laser_scan, street_scan
+    from _scans import rotating_2d_laser_scan, shuffled, street_scan, tilted, voxel_downsampled
 
     from lwbench import SensorModel, get_sensor
     from lwbench.io import read_kitti_bin, read_point_file
@@ -57,15 +39,15 @@ def make(out: Path, real: Path | None) -> None:
     qt = street_scan(get_sensor("pandarqt"), height=0.5)
     forty = street_scan(SensorModel("forty", tuple(np.linspace(-20, 20, 40)), 0.2, 0.5, 100.0, 10.0))
     scans = {
-        "gen HDL-64E (KITTI-like) shuffled [64]": _shuffled(kitti_like),
-        "gen HDL-64E voxel 0.2 m shuffled [64]": _shuffled(_voxel(kitti_like, 0.2)),
-        "gen OS1-64 shuffled [64]": _shuffled(os1),
-        "gen OS1-64 deskewed (0.2 deg tilt) [64]": _shuffled(_tilted(os1, 0.2)),
-        "gen OS1-64 tilted 0.3 deg, voxel 0.2 m [64]": _shuffled(_voxel(_tilted(os1, 0.3), 0.2)),
-        "gen PandarQT shuffled [64]": _shuffled(qt),
-        "gen PandarQT voxel 0.1 m [64]": _shuffled(_voxel(qt, 0.1)),
+        "gen HDL-64E (KITTI-like) shuffled [64]": shuffled(kitti_like),
+        "gen HDL-64E voxel 0.2 m shuffled [64]": shuffled(voxel_downsampled(kitti_like, 0.2)),
+        "gen OS1-64 shuffled [64]": shuffled(os1),
+        "gen OS1-64 deskewed (0.2 deg tilt) [64]": shuffled(tilted(os1, 0.2)),
+        "gen OS1-64 tilted 0.3 deg, voxel 0.2 m [64]": shuffled(voxel_downsampled(tilted(os1, 0.3), 0.2)),
+        "gen PandarQT shuffled [64]": shuffled(qt),
+        "gen PandarQT voxel 0.1 m [64]": shuffled(voxel_downsampled(qt, 0.1)),
         "gen rotating 2-D laser [-]": rotating_2d_laser_scan(),
-        "gen 40-beam, no preset [40]": _shuffled(forty),
+        "gen 40-beam, no preset [40]": shuffled(forty),
     }
     if real is not None and real.is_dir():
         samples = {
@@ -78,8 +60,8 @@ def make(out: Path, real: Path | None) -> None:
                 real / "kitti_object_000008" / "000008.bin").points,
         }
         for name, pts in samples.items():
-            scans[name.replace(" [", " shuffled [")] = _shuffled(pts)
-            scans[name.replace(" [", " voxel 0.2 m [")] = _shuffled(_voxel(pts, 0.2))
+            scans[name.replace(" [", " shuffled [")] = shuffled(pts)
+            scans[name.replace(" [", " voxel 0.2 m [")] = shuffled(voxel_downsampled(pts, 0.2))
     for i, pts in enumerate(scans.values()):
         np.save(out / f"{i:02d}.npy", pts.astype(np.float32))
     (out / "names.json").write_text(json.dumps(list(scans), indent=1))
