@@ -61,6 +61,7 @@ MAX_LASER_HEIGHT_M = 0.3  # height of the lasers' origin over the frame's that l
 _MIN_SHARPENING = 1.15
 _FINE_BIN_DEG = 0.01
 _MIN_PEAK_SIGMAS = 3.0
+_MIN_MEAN_BIN_COUNT = 20.0
 _MIN_SHARED_AZIMUTHS = 0.7  # of the 1-deg azimuth bins of the sparser of two neighbouring peaks
 _MIN_PEAK_CONTRAST = 0.25
 
@@ -201,6 +202,9 @@ def _peaks(el: np.ndarray, bin_deg: float) -> tuple[np.ndarray, float]:
     """Significant peaks of the elevation histogram (deg) and the median peak width (deg)."""
     from scipy.signal import find_peaks, peak_widths
 
+    # Bins that hold some 20 returns on average: a sparse scan's "peaks" of two or three points
+    # are noise, not beams.
+    bin_deg = max(bin_deg, _MIN_MEAN_BIN_COUNT * float(np.ptp(el)) / len(el))
     lo, hi = el.min() - 10 * bin_deg, el.max() + 10 * bin_deg
     hist, edges = np.histogram(el, bins=max(8, int((hi - lo) / bin_deg)), range=(lo, hi))
     smooth = np.convolve(hist, np.ones(3) / 3, mode="same")

@@ -116,14 +116,17 @@ def sensor_from_points(points: np.ndarray, **kwargs: Any) -> SensorModel:
     return derive_sensor(points, **kwargs).sensor
 
 
-def outside_range_window(points: np.ndarray, sensor: SensorModel) -> str | None:
+def outside_range_window(points: np.ndarray, sensor: SensorModel, min_share: float = 0.001) -> str | None:
     """What of a scan's returns lies outside ``sensor``'s range window (placeholders left out),
-    in words, or None: a model derived from one scan knows only that scan's nearest and farthest
-    return, and grid codecs drop what lies beyond."""
+    in words, or None when less than ``min_share`` of them does: a model derived from one scan
+    knows only that scan's nearest and farthest return, and grid codecs drop what lies beyond
+    (a stray return or two a scan is not worth a warning on every frame)."""
     p = np.asarray(points, dtype=np.float64)
     r = np.linalg.norm(p, axis=1)
     r = r[valid_returns(p, r)]
     far, near = r[r > sensor.max_range], r[r < sensor.min_range]
+    if len(far) + len(near) <= min_share * len(r):
+        return None
     said = []
     if len(far):
         said.append(f"{len(far)} returns beyond the max range {sensor.max_range:g} m (up to {far.max():.1f} m)")

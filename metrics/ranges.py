@@ -24,7 +24,8 @@ Both clouds are read the same way first: bit-identical duplicates count as one r
 writes them, Draco merges them, a selection codec may return a point twice -- a duplicate copy
 must not pair with another original's window), and points nearer than the sensor's minimum
 range are not returns (the placeholders drivers write for rays without a return). A return
-more than :data:`_BEAM_MARGIN` beam spacings outside the beam table has no partner.
+more than :data:`_BEAM_MARGIN` beam spacings outside the beam table has no window: only a
+bit-identical copy of it is its partner.
 
 Why one-to-one and nearest first, rather than "each original with its nearest decoded return
 in direction": real scans hold several returns within one window (at short range each laser's
@@ -118,6 +119,12 @@ MAX_CANDIDATES = 8
 _MAX_ROUNDS = 32
 
 
+def _returns(points: np.ndarray, sensor: SensorModel) -> np.ndarray:
+    """Indices of the points that are returns: not nearer than the sensor's minimum range."""
+    r = np.linalg.norm(np.asarray(points, dtype=np.float64), axis=1)
+    return np.flatnonzero((r > 0) & (r >= sensor.min_range))
+
+
 def _exact_pairs(p: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Bit-identical returns matched one-to-one (a value held by ``m`` originals and ``n``
     decoded returns gives ``min(m, n)`` pairs): a kept or losslessly reproduced return pairs
@@ -208,6 +215,12 @@ def match_returns(
     near_p = np.zeros(len(q_coords), dtype=bool)
     p_idx = np.flatnonzero(np.isfinite(p_coords[:, 0]))
     q_idx = np.flatnonzero(np.isfinite(q_coords[:, 0]))
+    # A bit-identical copy is its return's partner wherever it lies, also outside the table's
+    # margin (which has no window): a kept return is never unpaired.
+    p_ret = _returns(p_points, sensor)
+    q_ret = _returns(q_points, sensor)
+    pa, qb = _exact_pairs(np.asarray(p_points)[p_ret], np.asarray(q_points)[q_ret])
+    partner[p_ret[pa]] = q_ret[qb]
     if not len(p_idx) or not len(q_idx):
         return partner, near_p
     bound = float(np.nextafter(tolerance, np.inf))
@@ -215,10 +228,10 @@ def match_returns(
         p_tree = _tree(p_coords[p_idx], sensor)
     dist, _ = p_tree.query(q_coords[q_idx], k=1, p=np.inf, distance_upper_bound=bound, workers=thread_budget())
     near_p[q_idx] = np.isfinite(dist)
-    pa, qb = _exact_pairs(np.asarray(p_points)[p_idx], np.asarray(q_points)[q_idx])
-    partner[p_idx[pa]] = q_idx[qb]
-    free_p = p_idx[np.isin(np.arange(len(p_idx)), pa, invert=True)]
-    free_q = q_idx[np.isin(np.arange(len(q_idx)), qb, invert=True)]
+    free_p = p_idx[partner[p_idx] < 0]
+    taken_q = np.zeros(len(q_coords), dtype=bool)
+    taken_q[q_ret[qb]] = True
+    free_q = q_idx[~taken_q[q_idx]]
     if not len(free_p) or not len(free_q):
         return partner, near_p
     k = min(MAX_CANDIDATES, len(free_q))
