@@ -214,8 +214,8 @@ class _ScanFiles(Dataset):
             warnings.warn(
                 f"{self.name}: {self.files[index].name}: {outside}, outside the range window of the model derived "
                 f"from {choice.derived_from.name} -- grid codecs (rangeimage, VSGP) drop them and the range metrics "
-                "leave out returns nearer than the min range; name the sensor (--dataset-param sensor=...) or "
-                "widen the window with --dataset-param max_range=M",
+                "leave out returns nearer than the min range; name the sensor (--dataset-param sensor=...), or for "
+                "far returns widen the window with --dataset-param max_range=M",
                 DataWarning,
                 stacklevel=3,
             )
