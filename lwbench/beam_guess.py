@@ -289,10 +289,12 @@ def _apparent(table: np.ndarray, el_sensor: np.ndarray, el_data: np.ndarray) -> 
     return np.sort(out)
 
 
-def guess_beams(az: np.ndarray, el: np.ndarray, r: np.ndarray, bin_deg: float = 0.02) -> Guess:
-    """A beam table and azimuth step for returns with no ring labels (rules in the docstring)."""
-    el_sensor, frame = level(az, el, r)
-    best, fits = _snap(el_sensor)
+def guess_beams(az: np.ndarray, el: np.ndarray, r: np.ndarray, bin_deg: float = 0.02, *,
+                quick: bool = False) -> Guess:
+    """A beam table and azimuth step for returns with no ring labels (rules in the docstring;
+    ``quick``: the histogram rules only, in the scan's own frame)."""
+    el_sensor, frame = (el, {}) if quick else level(az, el, r)
+    best, fits = (None, []) if quick else _snap(el_sensor)
     tried = {f.preset: [round(f.spread, 3), round(f.occupied, 2)] for f in fits[:3]}
     if best is not None:
         columns = _columns(az, best.table, el_sensor, 2.0)

@@ -4,7 +4,7 @@ The rules, in order (the first that holds decides, and :class:`SensorEstimate` s
 
 1. **ring field** (PCD ``ring``, nuScenes): per-ring median elevation of the *returns* -- the
    placeholder points a driver writes for rays without a return (nuScenes: under 0.1 mm from the
-   origin, every one a copy of the others) are left out, else a ring that mostly saw the sky
+   origin) are left out, else a ring that mostly saw the sky
    takes the placeholder's meaningless elevation (an HDL-32E's rings 22-31 landed at -3.67 deg).
    The azimuth step comes from the points per ring: a driver that writes placeholders writes one
    point per firing, so the densest ring's count is the firings a turn; without placeholders
@@ -73,17 +73,11 @@ class SensorEstimate:
 
 
 def valid_returns(points: np.ndarray, r: np.ndarray | None = None) -> np.ndarray:
-    """Which points are returns: not nearer than :data:`PLACEHOLDER_RANGE_M` and not a repeated
-    copy of an earlier point (placeholders are written as one fixed point; exact duplicates of a
-    return add nothing to a median)."""
-    p = np.ascontiguousarray(points, dtype=np.float32)
+    """Which points are returns: not nearer than :data:`PLACEHOLDER_RANGE_M` (placeholders for
+    rays without a return are written at the origin or a hair from it)."""
     if r is None:
-        r = np.linalg.norm(p.astype(np.float64), axis=1)
-    ok = np.asarray(r) >= PLACEHOLDER_RANGE_M
-    _, first = np.unique(p.view(np.dtype((np.void, 12))).ravel(), return_index=True)
-    distinct = np.zeros(len(p), dtype=bool)
-    distinct[first] = True
-    return ok & distinct
+        r = np.linalg.norm(np.asarray(points, dtype=np.float64), axis=1)
+    return np.asarray(r) >= PLACEHOLDER_RANGE_M
 
 
 def coverage_deg(az: np.ndarray, step: float) -> int:
@@ -131,8 +125,11 @@ def estimate_sensor(
     rate_hz: float = 10.0,
     name: str = "derived",
     bin_deg: float = 0.02,
+    quick: bool = False,
 ) -> SensorEstimate:
-    """Read a sensor model's fields from one scan (rules in the module docstring)."""
+    """Read a sensor model's fields from one scan (rules in the module docstring). ``quick``
+    guesses from the histogram alone (no levelling, no presets): enough to tell a later scan of
+    another sensor, at a fiftieth of the cost."""
     p = np.asarray(points, dtype=np.float64)
     if p.ndim != 2 or p.shape[1:] != (3,):
         raise ValueError(f"points must have shape (N, 3), got {p.shape}")
@@ -159,7 +156,7 @@ def estimate_sensor(
             rule = "firing-major order: a point's position in a complete firing is its laser"
         if isinstance(reading, str):
             notes.append(reading)
-            guess = guess_beams(az[valid], el[valid], r[valid], bin_deg)
+            guess = guess_beams(az[valid], el[valid], r[valid], bin_deg, quick=quick)
             reading, method, rule = guess.reading, guess.method, guess.rule
     rv = r[valid]
     min_range = max(PLACEHOLDER_RANGE_M, float(np.floor(rv.min() * 10) / 10))

@@ -99,11 +99,13 @@ def derive_sensor(
     name: str = "derived",
     bin_deg: float = 0.02,
     warn: bool = True,
+    quick: bool = False,
 ) -> Derivation:
     """Estimate a sensor model from one real scan: the ring field when there is one, else the
     point order (ring-major, then firing-major), else a guess (with a :class:`DataWarning` when
-    ``warn``). The range window is the data's (placeholder points left out)."""
-    estimate = estimate_sensor(points, ring=ring, rate_hz=rate_hz, name=name, bin_deg=bin_deg)
+    ``warn``; ``quick``: a guess from the histogram alone, to check a later scan). The range
+    window is the data's (placeholder points left out)."""
+    estimate = estimate_sensor(points, ring=ring, rate_hz=rate_hz, name=name, bin_deg=bin_deg, quick=quick)
     if warn:
         for msg in estimate.warnings:
             warnings.warn(msg, DataWarning, stacklevel=2)

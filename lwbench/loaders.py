@@ -204,8 +204,9 @@ class _ScanFiles(Dataset):
 
     def _check_same_sensor(self, index: int, scan: ScanArrays) -> None:
         """A scan's own derived model against the one derived from the first scan: a folder of
-        two sensors must not silently share the first one's grid. Costs one derivation
-        (~40 ms on a 120k-point scan) per scan, once."""
+        two sensors must not silently share the first one's grid. Costs one derivation per scan,
+        once (~60 ms on a 120k-point scan; a guessed model is checked against the histogram's
+        quick guess, ~20 ms, not the full one's ~1 s)."""
         choice = self.sensor_choice
         if choice.derivation is None or index in self._checked or self.files[index] == choice.derived_from:
             return
@@ -220,7 +221,8 @@ class _ScanFiles(Dataset):
                 stacklevel=3,
             )
         if len(scan.points) >= 100:
-            mine = derive_sensor(scan.points, ring=scan.ring, rate_hz=self.sensor.rate_hz, warn=False)
+            mine = derive_sensor(scan.points, ring=scan.ring, rate_hz=self.sensor.rate_hz, warn=False,
+                                 quick=choice.guessed)
             why = sensor_mismatch(choice.derivation, mine)
             if why is not None:
                 first = choice.derivation
