@@ -42,8 +42,16 @@ from lwbench.beam_order import Reading, firings_per_turn
 from lwbench.sensor_specs import MAX_BEAMS, MAX_RAYS, MIN_AZIMUTH_STEP_DEG, SENSOR_SPECS
 
 __all__ = [
-    "Guess", "METHOD_PRESET", "METHOD_HISTOGRAM", "METHOD_UNIFORM", "guess_beams",
-    "MAX_OFFSET_DEG", "MAX_BEAM_SHIFT", "MAX_SPREAD", "MAX_OUTSIDE", "MIN_OCCUPIED",
+    "Guess",
+    "METHOD_PRESET",
+    "METHOD_HISTOGRAM",
+    "METHOD_UNIFORM",
+    "guess_beams",
+    "MAX_OFFSET_DEG",
+    "MAX_BEAM_SHIFT",
+    "MAX_SPREAD",
+    "MAX_OUTSIDE",
+    "MIN_OCCUPIED",
 ]
 
 METHOD_PRESET = "preset table fitted to the elevations"
@@ -101,8 +109,12 @@ def level(az: np.ndarray, el: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, di
         _, tx, ty, h = best
         for step in (0.5, 0.1, 0.02):  # tilt: coarse to fine around the best so far
             grid = np.arange(-4, 5) * step
-            trials = [(tx + dx, ty + dy) for dx in grid for dy in grid
-                      if abs(tx + dx) <= MAX_TILT_DEG and abs(ty + dy) <= MAX_TILT_DEG]
+            trials = [
+                (tx + dx, ty + dy)
+                for dx in grid
+                for dy in grid
+                if abs(tx + dx) <= MAX_TILT_DEG and abs(ty + dy) <= MAX_TILT_DEG
+            ]
             e0 = np.degrees(np.arctan2(z - h, rho))
             scores = [(_sharpness(e0 - x * cos_a - y * sin_a), x, y) for x, y in trials]
             score, tx, ty = max(scores)
@@ -116,8 +128,10 @@ def level(az: np.ndarray, el: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, di
     score, tx, ty, h = best
     if score < _MIN_SHARPENING * base:
         return el, {}
-    return elevations(tx, ty, h), {"tilt (deg)": [round(float(tx), 2), round(float(ty), 2)],
-                                   "laser height (m)": round(float(h), 3)}
+    return elevations(tx, ty, h), {
+        "tilt (deg)": [round(float(tx), 2), round(float(ty), 2)],
+        "laser height (m)": round(float(h), 3),
+    }
 
 
 def _fractional_index(x: np.ndarray, table: np.ndarray) -> np.ndarray:
@@ -140,8 +154,12 @@ class _Fit:
 
     @property
     def fits(self) -> bool:
-        return (self.spread <= MAX_SPREAD and self.outside <= MAX_OUTSIDE and self.occupied >= MIN_OCCUPIED
-                and self.in_span >= len(self.table) / 2)
+        return (
+            self.spread <= MAX_SPREAD
+            and self.outside <= MAX_OUTSIDE
+            and self.occupied >= MIN_OCCUPIED
+            and self.in_span >= len(self.table) / 2
+        )
 
 
 def _fit_preset(name: str, centres: np.ndarray, hist: np.ndarray) -> _Fit:
@@ -162,8 +180,11 @@ def _fit_preset(name: str, centres: np.ndarray, hist: np.ndarray) -> _Fit:
         w = np.bincount(k[near], weights=hist[near], minlength=len(table))
         mean = np.bincount(k[near], weights=(hist * (centres - moved[k]))[near], minlength=len(table))
         shift = np.where(w > 0, mean / np.maximum(w, 1e-12), 0.0)
-        moved = table + offset + np.clip(shift + (moved - table - offset), -MAX_BEAM_SHIFT * spacing,
-                                         MAX_BEAM_SHIFT * spacing)
+        moved = (
+            table
+            + offset
+            + np.clip(shift + (moved - table - offset), -MAX_BEAM_SHIFT * spacing, MAX_BEAM_SHIFT * spacing)
+        )
     u = _fractional_index(centres, moved)
     rho = u - np.round(u)
     inside = (u >= -0.5) & (u <= len(table) - 0.5)
@@ -214,8 +235,9 @@ def _peaks(el: np.ndarray, bin_deg: float) -> tuple[np.ndarray, float]:
         peaks, props = find_peaks(smooth, distance=distance, prominence=0.0)
         height = smooth[peaks]
         noise = np.sqrt(np.maximum(height, 1.0) / 3.0)  # Poisson noise of a 3-bin mean
-        strong = (props["prominences"] >= _MIN_PEAK_SIGMAS * noise) & (props["prominences"] >= _MIN_PEAK_CONTRAST
-                                                                          * height)
+        strong = (props["prominences"] >= _MIN_PEAK_SIGMAS * noise) & (
+            props["prominences"] >= _MIN_PEAK_CONTRAST * height
+        )
         peaks = peaks[strong]
         if len(peaks) == 0:
             return np.zeros(0), 0.0
@@ -270,8 +292,10 @@ def _uniform(az: np.ndarray, el: np.ndarray, peaks: int) -> Guess:
     columns = int(np.clip(round(360.0 / spacing), 1, min(360 / MIN_AZIMUTH_STEP_DEG, MAX_RAYS // beams)))
     table = np.linspace(lo, hi, beams)
     why = "no significant histogram peak" if peaks < 2 else f"{peaks} histogram peaks, more than {MAX_BEAMS} beams"
-    rule = (f"no beam table in the elevations ({why}): a uniform {beams} x {columns} grid, "
-            f"{360.0 / columns:.3f} deg, about one return a cell")
+    rule = (
+        f"no beam table in the elevations ({why}): a uniform {beams} x {columns} grid, "
+        f"{360.0 / columns:.3f} deg, about one return a cell"
+    )
     return Guess(Reading(table, 360.0 / columns, {"angular density (deg)": round(spacing, 4)}), METHOD_UNIFORM, rule)
 
 
@@ -289,8 +313,7 @@ def _apparent(table: np.ndarray, el_sensor: np.ndarray, el_data: np.ndarray) -> 
     return np.sort(out)
 
 
-def guess_beams(az: np.ndarray, el: np.ndarray, r: np.ndarray, bin_deg: float = 0.02, *,
-                quick: bool = False) -> Guess:
+def guess_beams(az: np.ndarray, el: np.ndarray, r: np.ndarray, bin_deg: float = 0.02, *, quick: bool = False) -> Guess:
     """A beam table and azimuth step for returns with no ring labels (rules in the docstring;
     ``quick``: the histogram rules only, in the scan's own frame)."""
     el_sensor, frame = (el, {}) if quick else level(az, el, r)
@@ -298,11 +321,18 @@ def guess_beams(az: np.ndarray, el: np.ndarray, r: np.ndarray, bin_deg: float = 
     tried = {f.preset: [round(f.spread, 3), round(f.occupied, 2)] for f in fits[:3]}
     if best is not None:
         columns = _columns(az, best.table, el_sensor, 2.0)
-        stats = {"preset": best.preset, "offset (deg)": round(best.offset, 3), "spread (spacings)":
-                 round(best.spread, 3), **frame, "closest presets [spread, occupied]": tried}
-        rule = (f"snapped to preset {best.preset}: returns within {best.spread:.2f} spacings (RMS) of its table "
-                f"moved by {best.offset:+.2f} deg (tolerance: spread <= {MAX_SPREAD}, offset <= {MAX_OFFSET_DEG} "
-                f"deg, beams moved <= {MAX_BEAM_SHIFT} spacings)")
+        stats = {
+            "preset": best.preset,
+            "offset (deg)": round(best.offset, 3),
+            "spread (spacings)": round(best.spread, 3),
+            **frame,
+            "closest presets [spread, occupied]": tried,
+        }
+        rule = (
+            f"snapped to preset {best.preset}: returns within {best.spread:.2f} spacings (RMS) of its table "
+            f"moved by {best.offset:+.2f} deg (tolerance: spread <= {MAX_SPREAD}, offset <= {MAX_OFFSET_DEG} "
+            f"deg, beams moved <= {MAX_BEAM_SHIFT} spacings)"
+        )
         table = _apparent(best.table, el_sensor, el) if frame else best.table
         return Guess(Reading(table, 360.0 / columns, stats), METHOD_PRESET, rule)
     peaks, width = _peaks(el_sensor, bin_deg)
@@ -315,10 +345,16 @@ def guess_beams(az: np.ndarray, el: np.ndarray, r: np.ndarray, bin_deg: float = 
     u = _fractional_index(el_sensor, np.sort(peaks))
     spread = float(np.sqrt(np.mean((u - np.round(u)) ** 2)))
     columns = _columns(az, np.sort(peaks), el_sensor, 2.0 if spread <= MAX_SPREAD else 1.0)
-    stats = {"significant peaks": len(peaks), "peak width (deg)": round(width, 3),
-             "spread (spacings)": round(spread, 3), **frame,
-             "closest presets [spread, occupied]": tried}
-    rule = (f"elevation histogram: {len(peaks)} significant peaks, no preset within tolerance (the count is "
-            f"bounded by the data's elevation resolution, {width:.2f} deg)")
+    stats = {
+        "significant peaks": len(peaks),
+        "peak width (deg)": round(width, 3),
+        "spread (spacings)": round(spread, 3),
+        **frame,
+        "closest presets [spread, occupied]": tried,
+    }
+    rule = (
+        f"elevation histogram: {len(peaks)} significant peaks, no preset within tolerance (the count is "
+        f"bounded by the data's elevation resolution, {width:.2f} deg)"
+    )
     table = _apparent(np.sort(peaks), el_sensor, el) if frame else np.sort(peaks)
     return Guess(Reading(table, 360.0 / columns, stats), METHOD_HISTOGRAM, rule)

@@ -23,8 +23,17 @@ import numpy as np
 
 from lwbench.sensor_specs import MAX_BEAMS
 
-__all__ = ["Reading", "angles", "sweep_steps", "typical_step", "segment_medians", "ring_major", "firing_major",
-           "SEAM_TOLERANCE_DEG", "firings_per_turn"]
+__all__ = [
+    "Reading",
+    "angles",
+    "sweep_steps",
+    "typical_step",
+    "segment_medians",
+    "ring_major",
+    "firing_major",
+    "SEAM_TOLERANCE_DEG",
+    "firings_per_turn",
+]
 
 # A step back along the sweep of up to this many degrees is jitter at a ring's seam (per-laser
 # azimuth offsets: ~4 deg on an OS1, a few deg on KITTI); a larger one is a gap *forward*

@@ -109,8 +109,14 @@ def derive_sensor(
     if warn:
         for msg in estimate.warnings:
             warnings.warn(msg, DataWarning, stacklevel=2)
-    return Derivation(SensorModel(**estimate.fields), estimate.method, estimate.stats, estimate.warnings,
-                      estimate.notes, estimate.rule)
+    return Derivation(
+        SensorModel(**estimate.fields),
+        estimate.method,
+        estimate.stats,
+        estimate.warnings,
+        estimate.notes,
+        estimate.rule,
+    )
 
 
 def sensor_from_points(points: np.ndarray, **kwargs: Any) -> SensorModel:

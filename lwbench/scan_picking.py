@@ -106,8 +106,9 @@ def rows_for(files: list[Path], n_rows: int, what: Path, loader: str) -> list[in
     if numbers is None and n_rows != len(files):
         raise DataFormatError(f"{loader}: {n_rows} rows in {what} for {len(files)} scans")
     if max(rows) >= n_rows:
-        raise DataFormatError(f"{loader}: {what} has {n_rows} rows, but scan {files[rows.index(max(rows))].name} "
-                              f"is frame {max(rows)}")
+        raise DataFormatError(
+            f"{loader}: {what} has {n_rows} rows, but scan {files[rows.index(max(rows))].name} is frame {max(rows)}"
+        )
     return rows
 
 

@@ -123,39 +123,98 @@ SENSOR_SPECS: dict[str, SensorSpec] = {
     # The VSGP paper's setting, not the VLP-16 datasheet's: +-15 deg in 2 deg steps (that is the
     # VLP-16's table), but 0.1 deg azimuth (3600 columns), 10 m max range, 4 Hz -> 57,600 rays.
     # Accuracy "+-3 cm (typical)" (VLP-16 datasheet) -> sigma 3 cm.
-    "vlp16": SensorSpec("vlp16", tuple(np.linspace(-15, 15, 16)), 3600, 0.1, 10.0, 4.0, 0.03,
-                        "VLP-16 table (Velodyne VLP-16 manual) in the VSGP paper's setting"),
+    "vlp16": SensorSpec(
+        "vlp16",
+        tuple(np.linspace(-15, 15, 16)),
+        3600,
+        0.1,
+        10.0,
+        4.0,
+        0.03,
+        "VLP-16 table (Velodyne VLP-16 manual) in the VSGP paper's setting",
+    ),
     # KITTI's HDL-64E at 10 Hz: ~2,083 firings per turn; 2,048 columns (0.176 deg) keeps the
     # cell count near the scan's point count (~120k). Accuracy "< 2 cm (1 sigma)" -> 2 cm.
-    "hdl64e": SensorSpec("hdl64e", _hdl64e_table(), 2048, 0.9, 120.0, 10.0, 0.02,
-                         "Velodyne HDL-64E S2 manual (nominal table)"),
+    "hdl64e": SensorSpec(
+        "hdl64e", _hdl64e_table(), 2048, 0.9, 120.0, 10.0, 0.02, "Velodyne HDL-64E S2 manual (nominal table)"
+    ),
     # Ouster OS1-128 in 1024x10 mode, 45 deg vertical field of view (the Gen 2 / rev C sheet;
     # os1-128-rev6 is the 42.4 deg one). Accuracy "+-3 cm" -> 3 cm.
-    "os1-128": SensorSpec("os1-128", tuple(np.linspace(-22.5, 22.5, 128)), 1024, 0.3, 120.0, 10.0, 0.03,
-                          "Ouster OS1-128 datasheet (rev C), uniform beam spacing over +-22.5 deg"),
+    "os1-128": SensorSpec(
+        "os1-128",
+        tuple(np.linspace(-22.5, 22.5, 128)),
+        1024,
+        0.3,
+        120.0,
+        10.0,
+        0.03,
+        "Ouster OS1-128 datasheet (rev C), uniform beam spacing over +-22.5 deg",
+    ),
     # HDL-32E: -30.67 to +10.67 deg in 4/3 deg steps (HDL-32E manual); 0.166 deg at 10 Hz (2,170
     # firings a turn); 1 m to 100 m; accuracy "< 2 cm (1 sigma at 25 m)" -> 2 cm.
-    "hdl32e": SensorSpec("hdl32e", _table(np.linspace(-30.67, 10.67, 32)), 2170, 1.0, 100.0, 10.0, 0.02,
-                         "Velodyne HDL-32E manual"),
+    "hdl32e": SensorSpec(
+        "hdl32e", _table(np.linspace(-30.67, 10.67, 32)), 2170, 1.0, 100.0, 10.0, 0.02, "Velodyne HDL-32E manual"
+    ),
     # VLP-16 Hi-Res (Puck Hi-Res): +-10 deg in 1.33 deg steps, 0.2 deg at 10 Hz, 100 m, "+-3 cm".
-    "vlp16-hires": SensorSpec("vlp16-hires", _table(np.linspace(-10, 10, 16)), 1800, 0.5, 100.0, 10.0, 0.03,
-                              "Velodyne Puck Hi-Res datasheet"),
+    "vlp16-hires": SensorSpec(
+        "vlp16-hires", _table(np.linspace(-10, 10, 16)), 1800, 0.5, 100.0, 10.0, 0.03, "Velodyne Puck Hi-Res datasheet"
+    ),
     # VLP-32C (Ultra Puck): 0.2 deg at 10 Hz, 200 m, accuracy "+-3 cm (typical)".
-    "vlp32c": SensorSpec("vlp32c", _table(_VLP32C), 1800, 0.5, 200.0, 10.0, 0.03,
-                         "Velodyne VLP-32C manual / velodyne ROS driver VeloView-VLP-32C.yaml"),
+    "vlp32c": SensorSpec(
+        "vlp32c",
+        _table(_VLP32C),
+        1800,
+        0.5,
+        200.0,
+        10.0,
+        0.03,
+        "Velodyne VLP-32C manual / velodyne ROS driver VeloView-VLP-32C.yaml",
+    ),
     # Pandar64: 0.2 deg at 10 Hz, 0.3 m to 200 m, accuracy "+-2 cm (typical)".
-    "pandar64": SensorSpec("pandar64", _table(_PANDAR64), 1800, 0.3, 200.0, 10.0, 0.02,
-                           "Hesai Pandar64 user manual / HesaiLidar_General_SDK"),
+    "pandar64": SensorSpec(
+        "pandar64",
+        _table(_PANDAR64),
+        1800,
+        0.3,
+        200.0,
+        10.0,
+        0.02,
+        "Hesai Pandar64 user manual / HesaiLidar_General_SDK",
+    ),
     # Pandar40P: 0.2 deg at 10 Hz, 0.3 m to 200 m, accuracy "+-2 cm (0.5 to 200 m)" -> 2 cm.
-    "pandar40p": SensorSpec("pandar40p", _table(_PANDAR40P), 1800, 0.3, 200.0, 10.0, 0.02,
-                            "Hesai Pandar40P user manual / HesaiLidar_General_SDK"),
+    "pandar40p": SensorSpec(
+        "pandar40p",
+        _table(_PANDAR40P),
+        1800,
+        0.3,
+        200.0,
+        10.0,
+        0.02,
+        "Hesai Pandar40P user manual / HesaiLidar_General_SDK",
+    ),
     # PandarQT: short range, 0.6 deg at 10 Hz (600 columns), 0.1 m to 20 m, accuracy "+-3 cm".
-    "pandarqt": SensorSpec("pandarqt", _table(_PANDARQT), 600, 0.1, 20.0, 10.0, 0.03,
-                           "Hesai PandarQT user manual / HesaiLidar_General_SDK pandarQT.h"),
+    "pandarqt": SensorSpec(
+        "pandarqt",
+        _table(_PANDARQT),
+        600,
+        0.1,
+        20.0,
+        10.0,
+        0.03,
+        "Hesai PandarQT user manual / HesaiLidar_General_SDK pandarQT.h",
+    ),
     # PandarXT-32: +15 to -16 deg in 1 deg steps (SDK table), 0.18 deg at 10 Hz (2,000 columns),
     # 0.05 m to 120 m, accuracy "+-1 cm (typical)".
-    "pandarxt32": SensorSpec("pandarxt32", _table(np.arange(-16.0, 15.5, 1.0)), 2000, 0.05, 120.0, 10.0, 0.01,
-                             "Hesai PandarXT-32 user manual / HesaiLidar_General_SDK pandarXT.h"),
+    "pandarxt32": SensorSpec(
+        "pandarxt32",
+        _table(np.arange(-16.0, 15.5, 1.0)),
+        2000,
+        0.05,
+        120.0,
+        10.0,
+        0.01,
+        "Hesai PandarXT-32 user manual / HesaiLidar_General_SDK pandarXT.h",
+    ),
 }
 for _family, _half, _range in (("os0", 45.0, 50.0), ("os1", 21.2, 120.0), ("os2", 11.25, 240.0)):
     for _beams in (32, 64, 128):

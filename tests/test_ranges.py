@@ -65,8 +65,10 @@ def test_placeholders_nearer_than_the_min_range_are_no_returns():
     decoded = np.concatenate([frame.points[~filler], jittered])
     m = _ranges(frame, decoded)
     assert m == {"range_rmsd": 0.0, "coverage": 1.0, "false_returns": 0.0}
-    at_zero = Frame(frame.points, SensorModel("z", frame.sensor.elevations_deg, frame.sensor.azimuth_step_deg,
-                                              0.0, frame.sensor.max_range, 20.0))
+    at_zero = Frame(
+        frame.points,
+        SensorModel("z", frame.sensor.elevations_deg, frame.sensor.azimuth_step_deg, 0.0, frame.sensor.max_range, 20.0),
+    )
     assert _ranges(at_zero, decoded)["false_returns"] > 0.1  # what a zero minimum range counted
 
 

@@ -34,8 +34,12 @@ def make(out: Path, real: Path | None) -> None:
     out.mkdir(parents=True, exist_ok=True)
     hdl64 = SensorModel("hdl64e-10hz", get_sensor("hdl64e").elevations_deg, 360 / 2083, 0.9, 120.0, 10.0)
     kitti_like = street_scan(hdl64, laser_height_m=0.2, table_jitter_deg=0.1)
-    os1 = street_scan(get_sensor("os1-64"), table_jitter_deg=0.05, laser_height_m=0.03,
-                      azimuth_offsets_deg=np.tile([3.0, 1.0, -1.0, -3.0], 16))
+    os1 = street_scan(
+        get_sensor("os1-64"),
+        table_jitter_deg=0.05,
+        laser_height_m=0.03,
+        azimuth_offsets_deg=np.tile([3.0, 1.0, -1.0, -3.0], 16),
+    )
     qt = street_scan(get_sensor("pandarqt"), height=0.5)
     forty = street_scan(SensorModel("forty", tuple(np.linspace(-20, 20, 40)), 0.2, 0.5, 100.0, 10.0))
     scans = {
@@ -55,9 +59,11 @@ def make(out: Path, real: Path | None) -> None:
             "real OS1-128 [128]": read_kitti_bin(real / "ouster_os1-128_seq3" / "000000.bin").points,
             "real HDL-32 pair source [32]": read_point_file(real / "hdl32_pair" / "source.pcd").points,
             "real 64-beam PCD, no ring (Pandar64) [64]": read_point_file(
-                real / "lidar64_static_pcd" / "2021-10-26-16-21-29-468.pcd").points,
+                real / "lidar64_static_pcd" / "2021-10-26-16-21-29-468.pcd"
+            ).points,
             "real KITTI object (camera crop) [46 in view]": read_kitti_bin(
-                real / "kitti_object_000008" / "000008.bin").points,
+                real / "kitti_object_000008" / "000008.bin"
+            ).points,
         }
         for name, pts in samples.items():
             scans[name.replace(" [", " shuffled [")] = shuffled(pts)
@@ -83,9 +89,16 @@ def derive(folder: Path) -> None:
             except ValueError as exc:
                 print(json.dumps({"case": name, "error": str(exc)[:80]}))
                 continue
-        row = {"case": name, "points": len(pts), "method": d.method, "beams": d.sensor.n_beams,
-               "step": round(d.sensor.azimuth_step_deg, 4), "rays": d.sensor.n_rays,
-               "seconds": round(time.perf_counter() - t0, 2), "rule": getattr(d, "rule", "")}
+        row = {
+            "case": name,
+            "points": len(pts),
+            "method": d.method,
+            "beams": d.sensor.n_beams,
+            "step": round(d.sensor.azimuth_step_deg, 4),
+            "rays": d.sensor.n_rays,
+            "seconds": round(time.perf_counter() - t0, 2),
+            "rule": getattr(d, "rule", ""),
+        }
         print(json.dumps(row))
 
 
@@ -102,8 +115,10 @@ def table(before: Path, after: Path) -> None:
     print("|---|---|---|---|---|")
     for case in a:
         rule = a[case].get("rule", "").split(":")[0]
-        print(f"| {case} | {a[case].get('points', '')} | {cell(b[case]) if case in b else '-'} | {cell(a[case])} | "
-              f"{rule} |")
+        print(
+            f"| {case} | {a[case].get('points', '')} | {cell(b[case]) if case in b else '-'} | {cell(a[case])} | "
+            f"{rule} |"
+        )
 
 
 def main() -> None:

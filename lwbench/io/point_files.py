@@ -107,8 +107,9 @@ def _declared(path: Path) -> _Declared | None:
         kv = {ln.split()[0].upper(): ln.split()[1:] for ln in lines if ln and not ln.startswith("#")}
         try:
             points = int(kv["POINTS"][0]) if "POINTS" in kv else int(kv["WIDTH"][0]) * int(kv["HEIGHT"][0])
-            record = sum(int(a) * int(b) for a, b in zip(kv["SIZE"], kv.get("COUNT", ["1"] * len(kv["SIZE"])),
-                                                         strict=True))
+            record = sum(
+                int(a) * int(b) for a, b in zip(kv["SIZE"], kv.get("COUNT", ["1"] * len(kv["SIZE"])), strict=True)
+            )
         except (KeyError, ValueError, IndexError):
             return None
         data = kv.get("DATA", [""])[0].lower()
@@ -162,8 +163,10 @@ def _check_declared(path: Path, d: _Declared, size: int) -> None:
             f"{path}: truncated: {what} ({d.body} bytes), the file holds {max(size - d.header, 0)} bytes after it"
         )
     if d.min_body and size < d.header + d.min_body:
-        raise DataFormatError(f"{path}: truncated: {what} ({d.min_body} bytes at least), the file holds "
-                              f"{max(size - d.header, 0)} bytes after it")
+        raise DataFormatError(
+            f"{path}: truncated: {what} ({d.min_body} bytes at least), the file holds "
+            f"{max(size - d.header, 0)} bytes after it"
+        )
     if d.compressed:
         with open(path, "rb") as fh:
             fh.seek(d.header)
@@ -172,8 +175,10 @@ def _check_declared(path: Path, d: _Declared, size: int) -> None:
             raise DataFormatError(f"{path}: truncated: no compressed body after the header")
         packed, unpacked = struct.unpack("<II", head)
         if unpacked != d.points * d.record or size < d.header + 8 + packed:
-            raise DataFormatError(f"{path}: {what} ({d.points * d.record} bytes); the compressed body says "
-                                  f"{unpacked} bytes in {packed}, the file holds {max(size - d.header - 8, 0)}")
+            raise DataFormatError(
+                f"{path}: {what} ({d.points * d.record} bytes); the compressed body says "
+                f"{unpacked} bytes in {packed}, the file holds {max(size - d.header - 8, 0)}"
+            )
     if d.ascii and d.points:
         # A text record is at least two bytes per point ("0\n"): a cheap bound first, then lines.
         if size - d.header < 2 * d.points or _text_lines(path, d.header) < d.points:
