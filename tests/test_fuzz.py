@@ -23,7 +23,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from test_codec_conformance import FAST_PARAMS
 
-from lwbench.fuzz import _split, class_ref, fuzz_sensors, mutate, seed_payloads, shared_server
+from lwbench.fuzz import class_ref, fuzz_sensors, mutate, seed_payloads, shared_server, split_payload
 from lwbench.registry import get_registry
 
 REGISTRY = get_registry()
@@ -51,7 +51,7 @@ def test_only_payload_errors_escape_a_decoder(codec):
                     "selection payload, fuzzed through every other selector)")
     seeds = seed_payloads(cls, FAST_PARAMS.get(codec))
     assert seeds, f"{codec}: no seed payload could be encoded"
-    bodies = [_split(data).body for _, data in seeds]
+    bodies = [split_payload(data).body for _, data in seeds]
     server = shared_server()
     server.register_sensors(fuzz_sensors())
 
