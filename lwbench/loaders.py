@@ -79,6 +79,14 @@ FILES_LAYOUTS = (
     "layouts that load: one scan file (.pcd, .ply, .xyz, .vtk, .bin, nuScenes .pcd.bin) or a folder of such "
     "scans named one way, with an optional pose file (*pose*.txt or poses_file=...)"
 )
+# What every loader of scans on disk declares beside its path.
+_SCAN_PARAMS = (_SENSOR_PARAM, _RATE_PARAM, _FIELDS_PARAM, _MAX_RANGE_PARAM)
+
+
+def _required_path(loader: str, path: str | None) -> Path:
+    if not path:
+        raise DataFormatError(f"{loader}: the path parameter is required")
+    return Path(path)
 
 
 # ---------------------------------------------------------------------------- sensor choice
@@ -320,17 +328,12 @@ class KittiDataset(_ScanFiles):
     params = (
         Param("path", "str", None, "sequence folder (or the odometry root, with sequence)"),
         Param("sequence", "str", None, "with path = the odometry root: the sequence (00..21)"),
-        _SENSOR_PARAM,
-        _RATE_PARAM,
-        _FIELDS_PARAM,
-        _MAX_RANGE_PARAM,
+        *_SCAN_PARAMS,
     )
 
     def __init__(self, **params: Any) -> None:
         super().__init__(**params)
-        if not self.config["path"]:
-            raise DataFormatError("kitti: the path parameter is required")
-        self.root = Path(self.config["path"])
+        self.root = _required_path(self.name, self.config["path"])
         if not self.root.is_dir():
             raise DataFormatError(f"kitti: {self.root} is not a folder; {KITTI_LAYOUTS}")
         layout = _kitti_layout(self.root, self.config["sequence"])
@@ -394,17 +397,12 @@ class PointFileDataset(_ScanFiles):
     params = (
         Param("path", "str", None, "folder or file"),
         Param("poses_file", "str", None, "pose file (KITTI 3x4 rows or TUM)"),
-        _SENSOR_PARAM,
-        _RATE_PARAM,
-        _FIELDS_PARAM,
-        _MAX_RANGE_PARAM,
+        *_SCAN_PARAMS,
     )
 
     def __init__(self, **params: Any) -> None:
         super().__init__(**params)
-        if not self.config["path"]:
-            raise DataFormatError("files: the path parameter is required")
-        self.root = Path(self.config["path"])
+        self.root = _required_path(self.name, self.config["path"])
         if self.root.is_file():
             if scan_suffix(self.root) is None:
                 raise DataFormatError(f"files: {self.root} is not a scan file; {FILES_LAYOUTS}")
