@@ -17,9 +17,9 @@ that they share a quantization cell, are all kept and decode onto one grid point
 fixed point). ``preserve_order=True`` would keep them, at 5x the bytes (measured: 102 kB ->
 527 kB on 100,000 points at 14 bits). So the encoder sends each distinct point once and, when
 the scan has copies, a generic attribute (unique id 0, uint32) with each distinct point's number
-of *extra* copies, which Draco codes with the positions in its k-d tree (+42 B on the generated
-HDL-32E sweep, whose 6,934 no-return copies are one point); the decoder repeats each point by
-it. Every return comes back (v3; v2 returned the distinct points only), and a scan without
+of *extra* copies, which Draco codes with the positions in its k-d tree (+59 B per payload on
+the generated HDL-32E sweep, whose 6,934 no-return copies are one point); the decoder repeats
+each point by it. Every return comes back (v3; v2 returned the distinct points only), and a scan without
 copies is coded exactly as before.
 """
 

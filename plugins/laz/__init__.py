@@ -170,7 +170,9 @@ class LazCodec(RepresentationCodec):
 
     name = "laz"
     version = "1"
-    in_default_run = True
+    # Fast enough for the main set (~50 ms per 120k-point scan each way), but left out so that
+    # the main job's table stays what the README shows: `--codec laz` adds it.
+    in_default_run = False
     description = "LAS 1.4 + LAZ (laspy + lazrs): coordinates on a user-chosen scale, lossless at it"
     params = (
         Param("scale", "float", 0.001, "LAS coordinate scale in metres (the quantization step)", low=1e-6, high=10.0),

@@ -1,4 +1,4 @@
-"""Encode + decode time per ~120k-point scan for draco, rangeimage and voxel.
+"""Encode + decode time per ~120k-point scan for draco, rangeimage, voxel, laz and cloudini.
 
 Draco (14 bits, level 7) is the reference: each benchmark times its codec and Draco in
 alternation and stores the ratio of their fastest round trips in ``extra_info["vs_draco"]``.
@@ -16,7 +16,9 @@ from functools import cache
 import numpy as np
 import pytest
 from _real import kitti_frame0
+from lwbench_plugins.cloudini import CloudiniCodec
 from lwbench_plugins.draco import DracoCodec
+from lwbench_plugins.laz import LazCodec
 from lwbench_plugins.rangeimage import RangeImageCodec
 from lwbench_plugins.voxel import VoxelSelector
 
@@ -33,6 +35,10 @@ CODECS: dict[str, tuple[type[Codec], dict]] = {
     "rangeimage-lossless": (RangeImageCodec, {"mode": "lossless"}),
     "voxel-0.2": (VoxelSelector, {"voxel_size": 0.2}),
     "voxel-0.5": (VoxelSelector, {"voxel_size": 0.5}),
+    "laz-1mm": (LazCodec, {}),
+    "laz-1cm": (LazCodec, {"scale": 0.01}),
+    "cloudini-1mm": (CloudiniCodec, {}),  # needs pureini (the `cloudini` extra; in dev)
+    "cloudini-1cm": (CloudiniCodec, {"resolution": 0.01}),
 }
 
 
