@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 from lwbench_metrics.localization import TrackingResult, pose_metrics
-from lwbench_metrics.task import _drives, _ground_truth
+from lwbench_metrics.task import _drives, _ground_truth, _pose_ids
 
 from lwbench import LOWER, MetricId, MissingDependencyError, Param, SequenceEvaluation, SequenceMetric, hookimpl
 
@@ -100,13 +100,10 @@ class KissOdometryMetric(SequenceMetric):
 
     name = "kiss"
     order = 57
+    # The odometry metric's trajectory ids with a kiss_ prefix; KISS-ICP flags no registration
+    # as failed, so kiss_failed (the whole run) replaces their icp_failures.
     ids = (
-        MetricId("kiss_ate_rmse", "m", LOWER),
-        MetricId("kiss_ate_mean", "m", LOWER),
-        MetricId("kiss_rot_err_deg", "deg", LOWER),
-        MetricId("kiss_mape", "", LOWER),
-        MetricId("kiss_rpe_trans", "m", LOWER),
-        MetricId("kiss_rpe_rot_deg", "deg", LOWER),
+        *(i for i in _pose_ids("kiss_", default=False) if i != "kiss_icp_failures"),
         MetricId("kiss_failed", "runs", LOWER),
     )
     description = (
