@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 from lwbench_metrics.localization import TrackingResult, pose_metrics
-from lwbench_metrics.task import _drives, _ground_truth, _pose_ids
+from lwbench_metrics.task import ground_truth, pose_ids, split_drives
 
 from lwbench import LOWER, MetricId, MissingDependencyError, Param, SequenceEvaluation, SequenceMetric, hookimpl
 
@@ -103,7 +103,7 @@ class KissOdometryMetric(SequenceMetric):
     # The odometry metric's trajectory ids with a kiss_ prefix; KISS-ICP flags no registration
     # as failed, so kiss_failed (the whole run) replaces their icp_failures.
     ids = (
-        *(i for i in _pose_ids("kiss_", default=False) if i != "kiss_icp_failures"),
+        *(i for i in pose_ids("kiss_", default=False) if i != "kiss_icp_failures"),
         MetricId("kiss_failed", "runs", LOWER),
     )
     description = (
@@ -119,8 +119,8 @@ class KissOdometryMetric(SequenceMetric):
     )
 
     def compute(self, seq: SequenceEvaluation) -> dict[str, float | None]:
-        gt, _ = _ground_truth(seq)
-        drives = _drives(seq)
+        gt, _ = ground_truth(seq)
+        drives = split_drives(seq)
         tracked = drives[1] if drives is not None else list(range(len(seq.decoded)))  # as the odometry metric
         scans = [seq.decoded[i] for i in tracked]
         max_range = self.config["max_range"] or float(seq.original(tracked[0]).sensor.max_range)
