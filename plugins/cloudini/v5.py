@@ -88,7 +88,7 @@ def header(n: int, resolution: float, fields: Sequence[str]) -> bytes:
 
 
 def quantize(values: np.ndarray, resolution: float) -> np.ndarray:
-    """``int64 (n, k)``: Cloudini's quantized values of a finite float32 cloud. A value whose
+    """``int32 (n, k)``: Cloudini's quantized values of a finite float32 cloud. A value whose
     quantum does not fit int32 raises ``ValueError``: Cloudini would saturate it and decode
     another value."""
     v = np.asarray(values, dtype=np.float32)
@@ -99,7 +99,7 @@ def quantize(values: np.ndarray, resolution: float) -> np.ndarray:
     if q.size and not (np.abs(q) < 2.0**31).all():
         worst = float(np.abs(v).max())
         raise ValueError(f"cloudini: a value of {worst:.1f} does not fit int32 at resolution {resolution}")
-    return q.astype(np.int64)
+    return q.astype(np.int32)
 
 
 def _chunk_starts(n: int) -> np.ndarray:
@@ -117,10 +117,11 @@ def _word(wide: bool) -> tuple[type[np.unsignedinteger], int]:
     return (np.uint64, MAX_VARINT_BYTES) if wide else (np.uint32, 4)
 
 
-def _varints(codes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(bytes, length of each code): the LEB128 varints of ``codes`` (in [1, 2**32]), concatenated."""
-    kind, width = _word(len(codes) > 0 and int(codes.max()) >= _NARROW)
-    c = codes.astype(kind)
+def _varints(zigzag: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(bytes, length of each code): the LEB128 varints of the codes ``zigzag + 1`` (``zigzag``
+    uint32), concatenated."""
+    kind, width = _word(len(zigzag) > 0 and int(zigzag.max()) >= _NARROW - 1)
+    c = zigzag.astype(kind) + kind(1)
     lengths = np.ones(c.shape, np.uint8)
     words = c & kind(0x7F)
     for j in range(1, width):
@@ -146,12 +147,11 @@ def write_body(values: np.ndarray, resolution: float, fields: Sequence[str]) -> 
     if n == 0:
         return out[0]
     q = quantize(v, resolution)
-    delta = np.diff(q, axis=0, prepend=0)
+    # int32 arithmetic throughout, as Cloudini's: numpy's int32 differences wrap around.
+    delta = np.diff(q, axis=0, prepend=np.int32(0))
     starts = _chunk_starts(n)
     delta[starts] = q[starts]
-    delta = delta.astype(np.int32).astype(np.int64)  # int32 wrap-around (numpy's cast is modular), as Cloudini
-    codes = (((delta << 1) ^ (delta >> 63)) + 1).astype(np.uint64).ravel()
-    stream, lengths = _varints(codes)
+    stream, lengths = _varints(((delta << 1) ^ (delta >> 31)).view(np.uint32).ravel())
     bounds = np.concatenate([[0], np.cumsum(lengths, dtype=np.int64)[starts[1:] * k - 1], [len(stream)]])
     compressor = zstandard.ZstdCompressor(level=ZSTD_LEVEL, write_content_size=True, write_checksum=False)
     for a, b in zip(bounds[:-1], bounds[1:], strict=True):
@@ -194,8 +194,8 @@ def _chunk_frames(body: bytes, start: int, n: int, k: int, codec: str) -> list[t
 
 
 def _read_varints(stream: np.ndarray, ends: np.ndarray, codec: str) -> np.ndarray:
-    """The codes (uint64) of a stream of whole varints of at most :data:`MAX_VARINT_BYTES` bytes
-    that end at ``ends`` (the positions of the bytes below 0x80)."""
+    """The codes of a stream of whole varints of at most :data:`MAX_VARINT_BYTES` bytes that end
+    at ``ends`` (the positions of the bytes below 0x80): uint32, uint64 when one has 5 bytes."""
     starts = np.empty_like(ends)
     starts[:1] = 0
     starts[1:] = ends[:-1] + 1
@@ -211,15 +211,14 @@ def _read_varints(stream: np.ndarray, ends: np.ndarray, codec: str) -> np.ndarra
     codes = words & kind(0x7F)
     for j in range(1, width):
         codes |= (words >> kind(j)) & kind(0x7F << (7 * j))
-    codes = codes.astype(np.uint64, copy=False)
-    if len(codes) and int(codes.max()) > _MAX_CODE:
+    if width > 4 and len(codes) and int(codes.max()) > _MAX_CODE:
         raise PayloadError(f"{codec} payload: Cloudini varint codes more than an int32 difference")
     return codes
 
 
 def _restarted_sums(delta: np.ndarray, restart: np.ndarray) -> np.ndarray:
     """Per column, the running sum of ``delta`` that starts again from 0 at every ``restart`` row."""
-    total = np.cumsum(delta, axis=0)
+    total = np.cumsum(delta, axis=0, dtype=delta.dtype)
     before = np.empty_like(total)
     for f in range(delta.shape[1]):
         rows = np.flatnonzero(restart[:, f])  # row 0 is always one (a chunk's first point)
@@ -255,16 +254,18 @@ def read_body(body: bytes, n: int, resolution: float, fields: Sequence[str], cod
     if not whole.all() or (counts != want).any():
         bad = int(np.flatnonzero(~whole | (counts != want))[0])
         raise PayloadError(f"{codec} payload: Cloudini chunk {bad} does not hold {int(want[bad])} whole varints")
-    codes = _read_varints(stream, ends, codec).view(np.int64).reshape(n, k)
+    codes = _read_varints(stream, ends, codec).reshape(n, k)
     nan = codes == 0
     has_nan = bool(nan.any())
-    zz = np.where(nan, 0, codes - 1) if has_nan else codes - 1
-    delta = (zz >> 1) ^ -(zz & 1)
+    zigzag = (codes - codes.dtype.type(1)).astype(np.uint32, copy=False)  # a marker's wraps: set to 0 below
+    delta = (zigzag >> np.uint32(1)).view(np.int32) ^ -(zigzag & np.uint32(1)).view(np.int32)
+    if has_nan:
+        delta[nan] = 0
     # Each field's q restarts from 0 at every chunk and after every NaN marker (delta 0 there);
-    # the sum is wrapped to int32 as Cloudini's int32 additions wrap (numpy's cast is modular).
+    # int32 sums wrap around as Cloudini's int32 additions do.
     restart = nan.copy() if has_nan else np.zeros((n, k), bool)
     restart[starts] = True
-    q = _restarted_sums(delta, restart).astype(np.int32)
+    q = _restarted_sums(delta, restart)
     out = np.multiply(q, np.float64(np.float32(resolution)), dtype=np.float64).astype(np.float32)
     if has_nan:
         out[nan] = np.nan
