@@ -37,14 +37,22 @@ from lwbench import (
     occupied_voxels,
 )
 
-__all__ = ["LocalizationMetric", "OdometryMetric", "OccupancyMetric", "lwbench_metrics"]
+__all__ = [
+    "LocalizationMetric",
+    "OdometryMetric",
+    "OccupancyMetric",
+    "ground_truth",
+    "lwbench_metrics",
+    "pose_ids",
+    "split_drives",
+]
 
 # What depends only on the originals is the same for every codec configuration of a run; it is
 # shared through SequenceEvaluation.cached (the run's sequence stage owns the cache), keyed by
 # what it depends on besides the originals.
 
 
-def _ground_truth(seq: SequenceEvaluation) -> tuple[np.ndarray, int]:
+def ground_truth(seq: SequenceEvaluation) -> tuple[np.ndarray, int]:
     """Ground-truth poses ``(n, 4, 4)`` and the total number of original points."""
 
     def compute():
@@ -56,7 +64,7 @@ def _ground_truth(seq: SequenceEvaluation) -> tuple[np.ndarray, int]:
     return seq.cached("ground_truth", compute)
 
 
-def _drives(seq: SequenceEvaluation) -> tuple[list[int], list[int]] | None:
+def split_drives(seq: SequenceEvaluation) -> tuple[list[int], list[int]] | None:
     """Positions (in ``seq``) of the mapping drive and the tracking drive when the evaluated
     frames span two of the dataset's traversals (at least two frames each), else ``None``."""
     where = {f: k for k, f in enumerate(seq.frame_indices)}
@@ -68,7 +76,7 @@ def _drives(seq: SequenceEvaluation) -> tuple[list[int], list[int]] | None:
 _POSE_IDS = ("ate_rmse", "ate_mean", "rot_err_deg", "mape", "rpe_trans", "rpe_rot_deg", "icp_failures")
 
 
-def _pose_ids(prefix: str, default: bool) -> tuple[MetricId, ...]:
+def pose_ids(prefix: str, default: bool) -> tuple[MetricId, ...]:
     """The trajectory-error ids, shared by map tracking and odometry (``odom_`` prefix); the map
     tracking's (``default``) are what the board shows, plots and flags a failed registration by."""
     units = {"ate_rmse": "m", "ate_mean": "m", "rot_err_deg": "deg", "mape": "", "rpe_trans": "m",
@@ -87,7 +95,7 @@ class LocalizationMetric(SequenceMetric):
     name = "localization"
     order = 50
     ids = (
-        *_pose_ids("", default=True),
+        *pose_ids("", default=True),
         MetricId("map_points", "pts", LOWER),
         MetricId("map_share", "share", LOWER),
         # When the *original* scans already fail ICP here, no codec's localization figure means
@@ -120,8 +128,8 @@ class LocalizationMetric(SequenceMetric):
         return world_map, track, tracking
 
     def compute(self, seq: SequenceEvaluation) -> dict[str, float | None]:
-        gt, n_original = _ground_truth(seq)
-        drives = _drives(seq)
+        gt, n_original = ground_truth(seq)
+        drives = split_drives(seq)
         world_map, tracking, tracked = self._track(seq.decoded, gt, drives)
         out = pose_metrics(gt[tracked], tracking)
         out["map_points"] = float(len(world_map))
@@ -143,7 +151,7 @@ class OdometryMetric(SequenceMetric):
 
     name = "odometry"
     order = 55
-    ids = _pose_ids("odom_", default=False)
+    ids = pose_ids("odom_", default=False)
     version = "2"  # 2: with two drives, the tracking drive only (no jump between drives)
     description = (
         "Decoded scans registered to the previous decoded scan (point-to-plane ICP, constant-velocity "
@@ -152,8 +160,8 @@ class OdometryMetric(SequenceMetric):
     settings = dict(ICP_PARAMS)
 
     def compute(self, seq: SequenceEvaluation) -> dict[str, float | None]:
-        gt, _ = _ground_truth(seq)
-        drives = _drives(seq)
+        gt, _ = ground_truth(seq)
+        drives = split_drives(seq)
         tracked = drives[1] if drives is not None else list(range(len(seq.decoded)))  # one drive: no jump
         scans = [seq.decoded[i] for i in tracked]
         return pose_metrics(gt[tracked], track_odometry(scans, gt[tracked][0], self.settings), prefix="odom_")
@@ -181,7 +189,7 @@ class OccupancyMetric(SequenceMetric):
     )
 
     def compute(self, seq: SequenceEvaluation) -> dict[str, float | None]:
-        gt, _ = _ground_truth(seq)
+        gt, _ = ground_truth(seq)
         sensor = seq.original(0).sensor
         p = self.settings
         out: dict[str, float | None] = {}
