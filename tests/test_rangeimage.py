@@ -183,8 +183,8 @@ def test_lossless_with_lossless_directions_reproduces_the_points() -> None:
     decoded = RangeImageCodec().decode(data)
     original = matched(distinct(frame.points), decoded, frame.sensor)
     dist = np.linalg.norm(decoded.astype(np.float64) - original, axis=1)
-    # float32 x, y, z: a relative precision of 6e-8; the decode is within a few of those.
-    assert (dist <= 4e-7 * np.linalg.norm(original, axis=1) + 1e-7).all()
+    # float32 x, y, z: a relative precision of 6e-8; the decode is within two of those.
+    assert (dist <= 1.5e-7 * np.linalg.norm(original, axis=1) + 1e-7).all()
     default = RangeImageCodec(mode="lossless").decode(RangeImageCodec(mode="lossless").encode(frame))
     coarse = np.linalg.norm(default.astype(np.float64) - matched(distinct(frame.points), default, frame.sensor), axis=1)
     assert coarse.mean() > 100 * dist.mean()  # what the bytes buy

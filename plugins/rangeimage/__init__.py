@@ -14,7 +14,7 @@ on the shared real scans, see ``docs/codecs.md``); this version keeps every retu
 2. **every return is placed** (:mod:`.layers`): the nearest in each cell is layer 0, the others
    an overflow list, the few the grid cannot describe verbatim exceptions; each keeps its own
    azimuth/elevation offset from the cell's ray in units of ``offset_step`` times the spacing
-   (or ``lossless_directions``: 2**-16 of it, float32-exact directions);
+   (or ``lossless_directions``: steps of 2**-24 rad, float32-exact directions);
 3. **ranges**: ``mode=quantized`` ``rint(range / step)`` (error <= step/2), no range window --
    every positive range is kept, far or near; ``mode=lossless`` the float32 range's bits;
 4. **predicted** (``predict=row-delta``: each value minus the previous occupied cell of its row,
@@ -39,7 +39,7 @@ from lwbench_plugins.rangeimage.bodies import (
     encode_image,
     level_for,
 )
-from lwbench_plugins.rangeimage.grid import Grid, derive_grid, fixed_grid, grid_model
+from lwbench_plugins.rangeimage.grid import Grid, derive_grid, elevation_units, fixed_grid, grid_model
 from lwbench_plugins.rangeimage.layers import (
     Layers,
     build_layers,
@@ -71,9 +71,10 @@ _SENSORS = ("frame", "derived", *sorted(SENSOR_PRESETS))
 #: Bodies whose layer-0 ranges decode approximately (overflow ranges are then coded on their own).
 LOSSY_BODIES = ("jpegxl-lossy", "zfp")
 _REFINE = ("beam", "none")
-#: ``lossless_directions``: offsets in 2**-16 of the spacing (5e-8 rad on a 0.2 degree grid,
-#: below float32's resolution of a direction).
-LOSSLESS_OFFSET_STEP = 2.0**-16
+#: ``lossless_directions``: offsets in steps of this many radians along either axis (the offset
+#: step becomes this over the grid's largest spacing), so a direction is within 3e-8 rad of the
+#: original's -- below float32's resolution of a direction (6e-8 relative).
+LOSSLESS_DIRECTION_RAD = 2.0**-24
 #: A payload holds at most this many returns per grid cell on average, and at most
 #: :data:`MAX_RETURNS` in all (16x an OS1-128 at 2,048 columns): what one sweep of a real sensor
 #: has, with room. The encoder refuses a scan beyond either (an accumulated map is not a sweep).
@@ -98,7 +99,7 @@ class RangeImageCodec(RepresentationCodec):
               "default: zstd 3, lzma 6, png 6, jpegxl 7", low=0, high=22),
         Param("offset_step", "float", 0.25, "direction offset quantum, in grid spacings (a decoded direction is "
               "within half of it of the original along each axis)", low=2.0**-16, high=1.0),
-        Param("lossless_directions", "bool", False, "offsets in 2^-16 of a spacing: directions as exact as float32 "
+        Param("lossless_directions", "bool", False, "offsets in steps of 2^-24 rad: directions as exact as float32 "
               "(with mode=lossless the decoded points are the originals to float32 rounding)"),
         Param("predict", "str", "row-delta", "predictive transform before entropy coding", choices=PREDICTORS),
         Param("shuffle", "str", "auto",
@@ -128,9 +129,11 @@ class RangeImageCodec(RepresentationCodec):
             return SensorModel.from_points(frame.points, ring=frame.ring, rate_hz=frame.sensor.rate_hz)
         return SENSOR_PRESETS[which]
 
-    @property
-    def _offset_step(self) -> float:
-        return LOSSLESS_OFFSET_STEP if self.config["lossless_directions"] else self.config["offset_step"]
+    def _offset_step(self, grid: Grid) -> float:
+        if not self.config["lossless_directions"]:
+            return self.config["offset_step"]
+        largest = max(grid.column_rad, float(elevation_units(grid.sensor).max()))
+        return LOSSLESS_DIRECTION_RAD / largest
 
     def _values(self, r: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, np.ndarray | None]:
         """The float32 ranges' bits, the coded range values (ordered like the ranges), their
@@ -142,17 +145,24 @@ class RangeImageCodec(RepresentationCodec):
         q = np.rint(r / self.config["step"]).astype(np.int64)
         return bits, q, 2 if int(q.max(initial=0)) < 1 << 16 else 4, q == 0
 
-    def encode(self, frame: Frame) -> bytes:
+    def layers(self, frame: Frame) -> tuple[SensorModel, Layers, int]:
+        """What :meth:`encode` writes, before the byte transforms: the rows' sensor model, the
+        :class:`Layers` (``source`` indexes ``frame.points``) and the range values' width."""
         sensor = self._sensor(frame)
         points = np.ascontiguousarray(frame.points, dtype=np.float32)
         r, az, el = spherical(points.astype(np.float64))
-        returns = r > 0  # a point at the origin is no return (the range metrics skip it too)
-        if not returns.all():
+        returns = np.flatnonzero(r > 0)  # a point at the origin is no return (the range metrics skip it too)
+        if len(returns) < len(points):
             points, r, az, el = points[returns], r[returns], az[returns], el[returns]
         grid = derive_grid(az, el, sensor) if self.config["refine"] == "beam" else fixed_grid(sensor)
         bits, values, width, verbatim = self._values(r)
-        q = self._offset_step
-        layers = build_layers(points, az, el, bits, values, grid, q, verbatim)
+        layers = build_layers(points, az, el, bits, values, grid, self._offset_step(grid), verbatim)
+        layers.source = returns[layers.source]
+        return sensor, layers, width
+
+    def encode(self, frame: Frame) -> bytes:
+        sensor, layers, width = self.layers(frame)
+        q = self._offset_step(layers.grid)
         _check_returns(layers)
         body, predict = self.config["body"], self.config["predict"]
         shuffle = self.config["shuffle"] == "on" or (
@@ -161,7 +171,7 @@ class RangeImageCodec(RepresentationCodec):
         codes = code_width(layers)
         meta: dict[str, Any] = {
             "sensor": self.sensor_meta(sensor), "mode": self.config["mode"], "body": body, "predict": predict,
-            "shuffle": shuffle, "columns": grid.columns, "offset_step": q, "width": width, "code_width": codes,
+            "shuffle": shuffle, "columns": layers.grid.columns, "offset_step": q, "width": width, "code_width": codes,
             "cells": int(layers.mask.sum()), "overflow": len(layers.ov_values), "exceptions": len(layers.exceptions),
             # LZMA2's literal coder conditions on the previous byte, which predicts the offset codes
             # better than a row-delta does (KITTI frame 0: 27.0 vs 29.0 kB); zstd's Huffman does not.
@@ -215,8 +225,8 @@ class RangeImageCodec(RepresentationCodec):
         if width not in (2, 4) or codes not in (1, 2, 4) or not lossless_ok:
             raise PayloadError(f"rangeimage payload: unsupported widths {width}/{codes} for mode={mode}")
         q = field("offset_step", float)
-        if not 2.0**-20 <= q <= 1.0:
-            raise PayloadError(f"rangeimage payload: offset step {q} outside [2^-20, 1]")
+        if not 2.0**-32 <= q <= 1.0:
+            raise PayloadError(f"rangeimage payload: offset step {q} outside [2^-32, 1]")
         step = field("step", float) if mode == "quantized" else 0.0
         if mode == "quantized" and not 1e-6 <= step <= 1e3:
             raise PayloadError(f"rangeimage payload: step must be in [1e-6, 1e3], got {step}")

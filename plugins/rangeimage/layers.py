@@ -67,6 +67,9 @@ class Layers:
     ov_az: np.ndarray
     ov_el: np.ndarray
     exceptions: np.ndarray  # (k, 3) float32
+    # Encoder side only (not in the payload): the index, into the points given to
+    # build_layers, of each return in decode order (layer 0 row-major, overflow, exceptions).
+    source: np.ndarray | None = None
 
     @property
     def n_returns(self) -> int:
@@ -123,16 +126,17 @@ def build_layers(points: np.ndarray, az: np.ndarray, el: np.ndarray, range_bits:
     l0, ov = k[first], k[~first]
     mask = np.zeros(nb * n_col, dtype=bool)
     mask[cell[l0]] = True
-    exceptions = np.asarray(points[outside], dtype=np.float32)
-    if len(exceptions) > 1:
-        _, once = np.unique(exceptions.view(np.dtype((np.void, 12))).ravel(), return_index=True)
-        exceptions = exceptions[np.sort(once)]
+    verbatim_idx = np.flatnonzero(outside)
+    if len(verbatim_idx) > 1:
+        _, once = np.unique(points[verbatim_idx].view(np.dtype((np.void, 12))).ravel(), return_index=True)
+        verbatim_idx = verbatim_idx[np.sort(once)]
     return Layers(
         grid=grid,
         mask=mask.reshape(nb, n_col),
         values0=values[l0], az0=qa[l0], el0=qe[l0],
         ov_cell=cell[ov], ov_values=values[ov], ov_az=qa[ov], ov_el=qe[ov],
-        exceptions=exceptions,
+        exceptions=np.asarray(points[verbatim_idx], dtype=np.float32).reshape(-1, 3),
+        source=np.concatenate([l0, ov, verbatim_idx]),
     )
 
 
