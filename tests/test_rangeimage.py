@@ -298,7 +298,9 @@ def test_an_accumulated_map_is_refused_with_a_clear_error() -> None:
     pts = rng.normal(size=(2000, 3)).astype(np.float32)
     with pytest.raises(ParameterError, match="per cell"):
         RangeImageCodec().encode(Frame(pts, s))
-    assert MAX_RETURNS == 1 << 22
+    big = np.repeat(pts[:1], MAX_RETURNS + 1, axis=0)  # refused on its count, before any work
+    with pytest.raises(ParameterError, match="not one sweep"):
+        RangeImageCodec().encode(Frame(big, get_sensor("vlp16")))
 
 
 def test_deterministic_and_decoded_by_any_instance() -> None:
@@ -448,3 +450,25 @@ def test_real_ouster_scan_every_return(real_data: Path) -> None:
     assert cov == 1.0 and rmsd < 0.0031
     # Measured 13.2x at 1 cm (version 3, which dropped 2 % of the returns: 11.4x).
     assert frame.raw_bytes / len(data) > 12
+
+
+def real_folders() -> list[str]:
+    from _real import real_data_dir
+
+    root = real_data_dir()
+    return sorted(p.name for p in root.iterdir() if p.is_dir()) if root.is_dir() else ["(absent)"]
+
+
+@pytest.mark.parametrize("folder", real_folders())
+def test_every_real_folder_is_covered_at_the_steps_error(real_data: Path, folder: str) -> None:
+    """Issue 24's bar on each shared real folder (first frame, the loader's sensor model, the
+    codec's defaults): coverage >= 0.99 and range RMSD <= 1 cm + the step's quantization."""
+    from lwbench.run.plan import resolve_dataset
+
+    registry = get_registry()
+    spec = resolve_dataset(registry, str(real_data / folder), {}, 0)
+    frame = registry.dataset(spec.name)(**spec.params)[0]
+    decoded = RangeImageCodec().decode(RangeImageCodec().encode(frame))
+    assert len(decoded) == len(distinct(frame.points))
+    cov, rmsd = coverage_and_rmsd(frame, decoded)
+    assert cov >= 0.99 and rmsd <= 0.01 + 0.01 / math.sqrt(12)

@@ -149,6 +149,11 @@ class RangeImageCodec(RepresentationCodec):
         """What :meth:`encode` writes, before the byte transforms: the rows' sensor model, the
         :class:`Layers` (``source`` indexes ``frame.points``) and the range values' width."""
         sensor = self._sensor(frame)
+        if len(frame.points) > MAX_RETURNS:  # refused before any per-point work (a 10 M-point map)
+            raise ParameterError(
+                f"rangeimage: {len(frame.points):,} points, more than the {MAX_RETURNS:,} returns a payload holds "
+                "(16x an OS1-128 sweep at 2,048 columns): not one sweep of a sensor; split it or use another codec"
+            )
         points = np.ascontiguousarray(frame.points, dtype=np.float32)
         r, az, el = spherical(points.astype(np.float64))
         returns = np.flatnonzero(r > 0)  # a point at the origin is no return (the range metrics skip it too)
