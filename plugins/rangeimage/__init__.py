@@ -273,7 +273,8 @@ class RangeImageCodec(RepresentationCodec):
     def _ranges(layers: Layers, mode: str, step: float, body: str) -> np.ndarray:
         values = np.r_[layers.values0, layers.ov_values]
         if mode == "lossless":
-            r = values.astype("<u4").view("<f4").astype(np.float64)
+            with np.errstate(invalid="ignore"):  # NaN patterns are refused just below
+                r = values.astype("<u4").view("<f4").astype(np.float64)
             if not (np.isfinite(r) & (r > 0)).all():
                 raise PayloadError("rangeimage payload: a lossless range is not a positive finite number")
             return r
