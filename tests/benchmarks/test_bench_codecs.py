@@ -30,6 +30,7 @@ CODECS: dict[str, tuple[type[Codec], dict]] = {
     "draco-14": (DracoCodec, {"quantization_bits": 14}),
     "draco-11": (DracoCodec, {"quantization_bits": 11}),
     "rangeimage-1cm": (RangeImageCodec, {"step": 0.01}),
+    "rangeimage-1cm-zstd": (RangeImageCodec, {"step": 0.01, "body": "zstd"}),
     "rangeimage-1cm-norefine": (RangeImageCodec, {"step": 0.01, "refine": "none"}),
     "rangeimage-5cm": (RangeImageCodec, {"step": 0.05}),
     "rangeimage-lossless": (RangeImageCodec, {"mode": "lossless"}),
