@@ -50,6 +50,17 @@ from lwbench.metric import (
     SequenceEvaluation,
     SequenceMetric,
 )
+from lwbench.noise_floor import (
+    GAUSSIAN_ENTROPY_BITS,
+    MaskBits,
+    ScanFloor,
+    floor_bits_per_point,
+    gaussian_step_bits,
+    mask_bits,
+    quantized_gaussian_bits,
+    scan_floor,
+    step_for_rmsd,
+)
 from lwbench.occupancy import OCCUPANCY_PARAMS, OccupancyMap, compare_occupancy, occupied_voxels
 from lwbench.parallel import thread_budget
 from lwbench.params import Param
@@ -78,6 +89,15 @@ __all__ = [
     "Evaluation",
     "Frame",
     "FrameMetric",
+    "floor_bits_per_point",
+    "GAUSSIAN_ENTROPY_BITS",
+    "gaussian_step_bits",
+    "MaskBits",
+    "mask_bits",
+    "quantized_gaussian_bits",
+    "scan_floor",
+    "ScanFloor",
+    "step_for_rmsd",
     "get_sensor",
     "Guard",
     "HIGHER",

@@ -18,7 +18,7 @@ from __future__ import annotations
 import functools
 import math
 import types
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -136,6 +136,7 @@ def gate_plan(
     seed: int = 0,
     metric_params: Mapping[str, Mapping[str, Any]] | None = None,
     sequence_metrics: bool = False,
+    metrics: Sequence[str] = (),
     registry: Registry | None = None,
 ):
     """The registry and the one-configuration :class:`~lwbench.run.RunPlan` of a gate: a
@@ -154,6 +155,7 @@ def gate_plan(
         seeds=(seed,),
         metric_params=metric_params or {},
         sequence_metrics=sequence_metrics,
+        metrics=tuple(metrics),
     )
     (plan,) = request.plans(registry)
     if len(plan.configs) != 1:
@@ -167,7 +169,8 @@ def run_gate(codec: str | type, *, store: str | Path | None = None, **options: A
 
     ``options`` are :func:`gate_plan`'s. ``store``: an existing results store is reused (cache
     hits); ``None`` keeps the results in memory only. Sequence metrics (localization,
-    occupancy) run only with ``sequence_metrics=True``.
+    occupancy) run only with ``sequence_metrics=True``; opt-in ones (kiss) only when also named
+    in ``metrics``.
     """
     from lwbench.run import Runner
     from lwbench.store import ResultStore

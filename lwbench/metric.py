@@ -202,13 +202,16 @@ class _Metric:
 
     @classmethod
     def describe(cls) -> dict:
-        return {
+        out = {
             "name": cls.name,
             "version": cls.version,
             "ids": [as_metric_id(i).describe() for i in cls.ids],
             "description": cls.description,
             "params": [p.describe() for p in cls.params],
         }
+        if not getattr(cls, "in_default_run", True):
+            out["in_default_run"] = False
+        return out
 
 
 class FrameMetric(_Metric, abc.ABC):
@@ -219,7 +222,14 @@ class FrameMetric(_Metric, abc.ABC):
 
 
 class SequenceMetric(_Metric, abc.ABC):
-    """Computes metric ids over a sequence (needs ground-truth poses)."""
+    """Computes metric ids over a sequence (needs ground-truth poses).
+
+    ``in_default_run``: whether a run with poses computes it unless told otherwise. A metric that
+    is slow for what most runs ask (KISS-ICP: ~17 s on the README's run) declares ``False`` and
+    runs only when named (``lwbench run --metric NAME``, a run file's ``metrics = [...]``) -- the
+    same declaration a codec makes, so no part of lwbench knows such a metric by name."""
+
+    in_default_run: ClassVar[bool] = True
 
     @abc.abstractmethod
     def compute(self, seq: SequenceEvaluation) -> MetricValues: ...

@@ -30,7 +30,8 @@ from typing import Any
 
 import pytest
 
-_RUN_OPTIONS = ("params", "dataset", "dataset_params", "frames", "seed", "metric_params", "sequence_metrics")
+_RUN_OPTIONS = ("params", "dataset", "dataset_params", "frames", "seed", "metric_params", "sequence_metrics",
+                "metrics")
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
@@ -60,18 +61,20 @@ def _split(kwargs: dict[str, Any]) -> tuple[dict[str, Any], dict[str, float]]:
 def lwbench_gate(lwbench_store: Path) -> Callable[..., Any]:
     """``lwbench_gate(codec, **run_options, **thresholds) -> GateResult``."""
     from lwbench.gates import parse_threshold, run_gate
-    from lwbench.metric import SequenceMetric
 
     def gate(codec: str | type, **kwargs: Any):
         __tracebackhide__ = True
         run, thresholds = _split(kwargs)
-        if "sequence_metrics" not in run:
-            # Localization and occupancy cost seconds: run them only when a threshold needs them.
+        if "sequence_metrics" not in run or "metrics" not in run:
+            # Localization and occupancy cost seconds: run them only when a threshold needs them,
+            # and an opt-in one (kiss) when a threshold names one of its ids.
             from lwbench.registry import get_registry
 
             reg = get_registry()
-            seq_ids = {str(i) for m in reg.sequence_metrics.values() if issubclass(m, SequenceMetric) for i in m.ids}
-            run["sequence_metrics"] = any(parse_threshold(t, reg)[1] in seq_ids for t in thresholds)
+            wanted = {parse_threshold(t, reg)[1] for t in thresholds}
+            named = [n for n, m in reg.sequence_metrics.items() if wanted & {str(i) for i in m.ids}]
+            run.setdefault("sequence_metrics", bool(named))
+            run.setdefault("metrics", named)
         return run_gate(codec, store=lwbench_store, **run).require(**thresholds)
 
     return gate

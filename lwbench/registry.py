@@ -17,6 +17,7 @@ import importlib
 import importlib.metadata as md
 import os
 import traceback
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -176,8 +177,25 @@ class Registry:
         """Every frame metric, configured; ``metric_params`` maps metric name -> parameters."""
         return _instances(self.frame_metrics, metric_params or {})
 
-    def sequence_metric_instances(self, metric_params: dict[str, dict] | None = None) -> list[SequenceMetric]:
-        return _instances(self.sequence_metrics, metric_params or {})
+    def sequence_metric_instances(
+        self, metric_params: dict[str, dict] | None = None, named: Sequence[str] = ()
+    ) -> list[SequenceMetric]:
+        """The sequence metrics a run computes, configured: those that declare ``in_default_run``
+        and the opt-in ones ``named`` (checked by :meth:`check_named_metrics`)."""
+        wanted = self.check_named_metrics(named)
+        chosen = {n: c for n, c in self.sequence_metrics.items() if c.in_default_run or n in wanted}
+        return _instances(chosen, metric_params or {})
+
+    def check_named_metrics(self, named: Sequence[str]) -> set[str]:
+        """The metric names a run asked for by name (``--metric``); an unknown name is an error.
+        Frame metrics always run, and so do default sequence metrics: naming them changes nothing."""
+        known = {**self.frame_metrics, **self.sequence_metrics}
+        unknown = sorted(set(named) - set(known))
+        if unknown:
+            raise PluginError(
+                f"--metric names unknown metric(s) {', '.join(unknown)}; metrics: {', '.join(sorted(known))}"
+            )
+        return set(named)
 
     def check_metric_params(self, metric_params: dict[str, dict]) -> None:
         """Reject parameters for metrics that are not installed (values are checked on use)."""

@@ -106,6 +106,9 @@ def rd(
         print(json.dumps({"rate": rate, "distortion": distortion, "datasets": summary, "left_out": skipped}, indent=2))
         return
     _print_rd(summary, info, distortion, rate, reference, at_rate, at_distortion)
+    from lwbench.noise_floor import print_floor  # the noise floor's line (docs/codecs.md)
+
+    print_floor(entries, curves, lambda line: console.print(escape(line), highlight=False))
     if skipped:
         console.print("left out: " + escape("; ".join(f"{s['label']} ({s['reason']})" for s in skipped)))
 

@@ -36,6 +36,7 @@ def installed(reg) -> dict:
                 "params": [p.describe() for p in m.params],
                 "description": m.description,
                 "provider": reg.providers[("metric", n)],
+                "in_default_run": getattr(m, "in_default_run", True),
             }
             for kind, table in (("frame", reg.frame_metrics), ("sequence", reg.sequence_metrics))
             for n, m in sorted(table.items())
@@ -73,7 +74,8 @@ def list_plugins(
     for col in ("name", "kind", "ids", "provider"):
         table.add_column(col)
     for m in data["metrics"]:
-        table.add_row(m["name"], m["kind"], ", ".join(m["ids"]), m["provider"])
+        kind = m["kind"] if m["in_default_run"] else f"{m['kind']} (opt-in: --metric {m['name']})"
+        table.add_row(m["name"], kind, ", ".join(m["ids"]), m["provider"])
     console.print(table)
     if data["failures"]:
         table = Table(title="Plugins that failed to load", title_justify="left", style="red")

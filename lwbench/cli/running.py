@@ -47,6 +47,9 @@ def run(
     seed: Seed = 0,
     sequence_metrics: Annotated[bool, typer.Option(
         help="Localization/occupancy metrics when poses exist.", rich_help_panel=METRICS)] = True,
+    metric: Annotated[list[str] | None, typer.Option(
+        "--metric", help="Also run this opt-in sequence metric, e.g. kiss (repeat; `lwbench list` marks them).",
+        rich_help_panel=METRICS)] = None,
     retry_failed: Annotated[bool, typer.Option(help="Re-evaluate stored failures.", rich_help_panel=EXECUTION)] = False,
     force: Annotated[bool, typer.Option(
         "--force", help="Recompute every row, even those already stored.", rich_help_panel=EXECUTION)] = False,
@@ -90,7 +93,7 @@ def run(
         request = RunRequest.from_words(
             reg, dataset=dataset, dataset_params=words(dataset_param), codecs=words(codec), params=words(param),
             metric_params=words(metric_param), seed=seed, frames=frames, sequence_metrics=sequence_metrics,
-            store=store, workers=workers, **options)
+            metrics=tuple(words(metric)), store=store, workers=workers, **options)
     info = reg.metric_info()
     wanted = wanted_columns(columns, info)
     if sort is not None:

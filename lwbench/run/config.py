@@ -7,6 +7,7 @@ team commits, so a published rate-distortion figure is one command (``lwbench ru
     frames = 10                            # optional: first N frames of every dataset
     seeds = [0, 1, 2]                      # optional, default [0]
     sequence_metrics = true                # optional
+    metrics = ["kiss"]                     # optional: opt-in sequence metrics to run as well
     workers = 1                            # optional
 
     [[dataset]]
@@ -44,7 +45,7 @@ else:  # pragma: no cover - Python 3.10
 
 __all__ = ["RunFile", "load_run_file", "read_run_file"]
 
-_TOP = {"store", "frames", "seeds", "sequence_metrics", "workers", "dataset", "codec", "metric_params"}
+_TOP = {"store", "frames", "seeds", "sequence_metrics", "metrics", "workers", "dataset", "codec", "metric_params"}
 _DATASET = {"name", "params"}
 _CODEC = {"name", "params"}
 
@@ -105,6 +106,7 @@ def read_run_file(path: str | Path) -> RunRequest:
         seeds=tuple(int(s) for s in _as_list(doc.get("seeds", [0]))),
         metric_params=doc.get("metric_params", {}),
         sequence_metrics=bool(doc.get("sequence_metrics", True)),
+        metrics=tuple(str(m) for m in _as_list(doc.get("metrics", []))),
         store=Path(store) if store else None,
         workers=int(doc.get("workers", 1)),
     )

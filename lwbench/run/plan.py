@@ -90,6 +90,9 @@ class RunPlan:
     seed: int = 0
     metric_params: dict[str, dict[str, Any]] = field(default_factory=dict)
     sequence_metrics: bool = True
+    # Opt-in metrics named for this run (``--metric``): sequence metrics that are not in the
+    # default run (SequenceMetric.in_default_run = False) are computed only when named here.
+    metrics: tuple[str, ...] = ()
 
     def frame_indices(self, dataset: Dataset) -> list[int]:
         n = len(dataset)
@@ -220,6 +223,7 @@ def plan_run(
     seed: int = 0,
     metric_params: Mapping[str, Mapping[str, Any]] | None = None,
     sequence_metrics: bool = True,
+    metrics: Sequence[str] = (),
 ) -> RunPlan:
     """Turn a request into a validated :class:`RunPlan` (every error is a clear ``LwbenchError``)."""
     spec = frames_for(registry, resolve_dataset(registry, dataset, dataset_params or {}, seed), frames)
@@ -235,7 +239,11 @@ def plan_run(
         configs += expand_codec_configs(registry.codec(name), sweeps.get(name, {}), seed)
     metric_params = {k: dict(v) for k, v in (metric_params or {}).items()}
     registry.check_metric_params(metric_params)
-    return RunPlan(spec, tuple(_unique(configs)), frames, seed, metric_params, sequence_metrics)
+    named = tuple(dict.fromkeys(metrics))
+    registry.check_named_metrics(named)
+    if not sequence_metrics and set(named) & set(registry.sequence_metrics):
+        raise ParameterError("--metric names a sequence metric but --no-sequence-metrics turns them off")
+    return RunPlan(spec, tuple(_unique(configs)), frames, seed, metric_params, sequence_metrics, named)
 
 
 def preflight(registry: Registry, plan: RunPlan, *, local_devices: bool = True) -> Dataset:

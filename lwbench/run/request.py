@@ -49,6 +49,7 @@ class RunRequest:
     seeds: tuple[int, ...] = (0,)
     metric_params: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
     sequence_metrics: bool = True
+    metrics: tuple[str, ...] = ()  # opt-in metrics named (--metric): see SequenceMetric.in_default_run
     # -- where and how (not part of any result's key) --
     store: Path | None = None  # None: DEFAULT_STORE
     workers: int = 1
@@ -116,6 +117,7 @@ class RunRequest:
                 seed=seed,
                 metric_params=self.metric_params,
                 sequence_metrics=self.sequence_metrics,
+                metrics=self.metrics,
             )
             for d in self.datasets
             for seed in self.seeds

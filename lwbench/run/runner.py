@@ -96,9 +96,11 @@ class Runner:
             self.registry, plan.dataset.label, self.dataset_id, plan.seed, self.evaluator.scoring, Provenance.current()
         )
         self.sequence: SequenceStage | None = None
-        if plan.sequence_metrics and self.dataset.has_poses and self.registry.sequence_metrics:
-            metrics = self.registry.sequence_metric_instances(plan.metric_params)
-            self.sequence = SequenceStage(store, self.dataset, self.frame_indices, self.rows, self.evaluator, metrics)
+        if plan.sequence_metrics and self.dataset.has_poses:
+            metrics = self.registry.sequence_metric_instances(plan.metric_params, plan.metrics)
+            if metrics:
+                self.sequence = SequenceStage(store, self.dataset, self.frame_indices, self.rows, self.evaluator,
+                                              metrics)
 
     # -- what the run asks for -------------------------------------------------------------
     def keys(self) -> set[str]:

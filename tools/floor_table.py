@@ -1,0 +1,57 @@
+"""Every configuration of a store against the noise floor, as the markdown table of README.md and
+docs/codecs.md: bytes, bits per point, range RMSD, D1 PSNR, coverage, the floor's bits per point
+at the configuration's range RMSD and its distance to it (``lwbench.noise_floor``).
+
+    python tools/floor_table.py STORE [--dataset NAME]
+
+The rows come from ``lwbench run`` (``tools/floor_rd.sh`` runs the README's); a flagged
+configuration (low coverage) is listed with its flag, since the floor -- the floor of a codec
+that keeps every return -- does not bound it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+from lwbench.leaderboard import build_leaderboard
+from lwbench.noise_floor import entry_floor
+from lwbench.registry import get_registry
+from lwbench.store import ResultStore
+
+
+def _fmt(v: float | None, spec: str) -> str:
+    if v is None:
+        return "–"
+    if math.isinf(v):
+        return "inf"
+    return format(v, spec)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("store")
+    ap.add_argument("--dataset", default=None)
+    args = ap.parse_args()
+    reg = get_registry()
+    with ResultStore(args.store, readonly=True) as store:
+        entries = build_leaderboard(store, dataset=args.dataset, info=reg.metric_info(), sort="bits_per_point")
+    print("| dataset | codec | bytes | bits/point | range RMSD (mm) | D1 PSNR (dB) | coverage | floor (bits/point) "
+          "| distance to the floor (bits/point) | flags |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for e in sorted(entries, key=lambda e: (e.dataset, e.value("bits_per_point") or math.inf)):
+        floor, bpp, rmsd = entry_floor(e), e.value("bits_per_point"), e.value("range_rmsd")
+        gap = None if floor is None or bpp is None else bpp - floor
+        exact = rmsd == 0 and not e.flags
+        print(f"| {e.dataset} | {e.label} | {_fmt(e.value('bytes'), ',.0f')} | {_fmt(bpp, '.2f')} "
+              f"| {_fmt(None if rmsd is None else 1000 * rmsd, '.3g')} | {_fmt(e.value('d1_psnr'), '.1f')} "
+              f"| {_fmt(e.value('coverage'), '.3f')} | {'exact' if exact else _fmt(floor, '.2f')} "
+              f"| {'–' if exact else _fmt(gap, '+.2f')} | {e.flags_text} |")
+    for ds in sorted({e.dataset for e in entries}):
+        e = next(x for x in entries if x.dataset == ds and x.value("floor_sigma") is not None)
+        print(f"\n{ds}: sigma {1000 * e.value('floor_sigma'):.3g} mm, mask {e.value('floor_mask_bpp'):.3f} bit/point, "
+              f"{e.value('points_in'):,.0f} points per frame")
+
+
+if __name__ == "__main__":
+    main()
