@@ -254,6 +254,14 @@ def draw_floor(ax: Any, entries: list[Any], distortion: str, rate: str) -> bool:
         ax.plot(x, d[keep], ls="--", lw=1.2, color="0.35", label="noise floor")
     else:
         rows.sort(key=lambda r: r[0].value(distortion))
-        ax.plot([to_rate(f, e) for e, f in rows], [e.value(distortion) for e, _ in rows],
-                ls="--", marker="x", ms=4, lw=1.0, color="0.35", label="noise floor")
+        ax.plot(
+            [to_rate(f, e) for e, f in rows],
+            [e.value(distortion) for e, _ in rows],
+            ls="--",
+            marker="x",
+            ms=4,
+            lw=1.0,
+            color="0.35",
+            label="noise floor",
+        )
     return True

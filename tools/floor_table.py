@@ -36,21 +36,27 @@ def main() -> None:
     reg = get_registry()
     with ResultStore(args.store, readonly=True) as store:
         entries = build_leaderboard(store, dataset=args.dataset, info=reg.metric_info(), sort="bits_per_point")
-    print("| dataset | codec | bytes | bits/point | range RMSD (mm) | D1 PSNR (dB) | coverage | floor (bits/point) "
-          "| distance to the floor (bits/point) | flags |")
+    print(
+        "| dataset | codec | bytes | bits/point | range RMSD (mm) | D1 PSNR (dB) | coverage | floor (bits/point) "
+        "| distance to the floor (bits/point) | flags |"
+    )
     print("|---|---|---|---|---|---|---|---|---|---|")
     for e in sorted(entries, key=lambda e: (e.dataset, e.value("bits_per_point") or math.inf)):
         floor, bpp, rmsd = entry_floor(e), e.value("bits_per_point"), e.value("range_rmsd")
         gap = None if floor is None or bpp is None else bpp - floor
         exact = rmsd == 0 and not e.flags
-        print(f"| {e.dataset} | {e.label} | {_fmt(e.value('bytes'), ',.0f')} | {_fmt(bpp, '.2f')} "
-              f"| {_fmt(None if rmsd is None else 1000 * rmsd, '.3g')} | {_fmt(e.value('d1_psnr'), '.1f')} "
-              f"| {_fmt(e.value('coverage'), '.3f')} | {'exact' if exact else _fmt(floor, '.2f')} "
-              f"| {'–' if exact else _fmt(gap, '+.2f')} | {e.flags_text} |")
+        print(
+            f"| {e.dataset} | {e.label} | {_fmt(e.value('bytes'), ',.0f')} | {_fmt(bpp, '.2f')} "
+            f"| {_fmt(None if rmsd is None else 1000 * rmsd, '.3g')} | {_fmt(e.value('d1_psnr'), '.1f')} "
+            f"| {_fmt(e.value('coverage'), '.3f')} | {'exact' if exact else _fmt(floor, '.2f')} "
+            f"| {'–' if exact else _fmt(gap, '+.2f')} | {e.flags_text} |"
+        )
     for ds in sorted({e.dataset for e in entries}):
         e = next(x for x in entries if x.dataset == ds and x.value("floor_sigma") is not None)
-        print(f"\n{ds}: sigma {1000 * e.value('floor_sigma'):.3g} mm, mask {e.value('floor_mask_bpp'):.3f} bit/point, "
-              f"{e.value('points_in'):,.0f} points per frame")
+        print(
+            f"\n{ds}: sigma {1000 * e.value('floor_sigma'):.3g} mm, mask {e.value('floor_mask_bpp'):.3f} bit/point, "
+            f"{e.value('points_in'):,.0f} points per frame"
+        )
 
 
 if __name__ == "__main__":
