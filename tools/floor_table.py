@@ -3,6 +3,10 @@ docs/codecs.md: bytes, bits per point, range RMSD, D1 PSNR, coverage, the floor'
 at the configuration's range RMSD and its distance to it (``lwbench.noise_floor``).
 
     python tools/floor_table.py STORE [--dataset NAME]
+    python tools/floor_table.py --curve DATASET [--dataset-param KEY=VALUE ...] [--sigma M]
+
+``--curve`` prints the floor itself for the first frame of a dataset (as ``lwbench run`` would
+read it): the mask's bits, measured and bounded, and the floor at a few range RMSDs.
 
 The rows come from ``lwbench run`` (``tools/floor_rd.sh`` runs the README's); a flagged
 configuration (low coverage) is listed with its flag, since the floor -- the floor of a codec
@@ -15,7 +19,14 @@ import argparse
 import math
 
 from lwbench.leaderboard import build_leaderboard
-from lwbench.noise_floor import entry_floor
+from lwbench.noise_floor import (
+    entry_floor,
+    floor_bits_per_point,
+    gaussian_step_bits,
+    quantized_gaussian_bits,
+    scan_floor,
+    step_for_rmsd,
+)
 from lwbench.registry import get_registry
 from lwbench.store import ResultStore
 
@@ -28,11 +39,45 @@ def _fmt(v: float | None, spec: str) -> str:
     return format(v, spec)
 
 
+def curve(dataset: str, words: list[str], sigma: float | None) -> None:
+    from lwbench.run.plan import parse_assignments, resolve_dataset
+
+    reg = get_registry()
+    frame = resolve_dataset(reg, dataset, parse_assignments(words, "--dataset-param"), 0).build(reg)[0]
+    floor = scan_floor(frame)
+    sigma = sigma or floor.sigma
+    m = floor.mask
+    print(
+        f"{dataset} {' '.join(words)}: sensor {frame.sensor.name} {frame.sensor.shape[0]} x {frame.sensor.shape[1]}, "
+        f"{floor.points:,} points, {m.returns:,} cells returned (fill {m.fill:.3f}); sigma {1000 * sigma:.3g} mm"
+    )
+    print(
+        f"mask: {floor.mask_bpp:.3f} bit/point measured (order-2 context), "
+        f"{m.bound_bits / floor.points:.3f} bit/point bound (binary entropy of the fill ratio)"
+    )
+    print("| range RMSD (mm) | step sqrt(12)*RMSD (mm) | noise (bits/return) | closed form | floor (bits/point) |")
+    print("|---|---|---|---|---|")
+    for d in (0.0001, 0.0003, 0.001, 0.003, 0.01, 0.03):
+        step = step_for_rmsd(d)
+        print(
+            f"| {1000 * d:g} | {1000 * step:.3g} | {quantized_gaussian_bits(sigma, step):.3f} "
+            f"| {gaussian_step_bits(sigma, step):.3f} | {floor_bits_per_point(d, sigma, floor.mask_bpp):.3f} |"
+        )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("store")
+    ap.add_argument("store", nargs="?")
     ap.add_argument("--dataset", default=None)
+    ap.add_argument("--curve", default=None, help="a dataset: print its first frame's floor")
+    ap.add_argument("--dataset-param", action="append", default=[])
+    ap.add_argument("--sigma", type=float, default=None, help="range noise (m) instead of the sensor model's")
     args = ap.parse_args()
+    if args.curve:
+        curve(args.curve, args.dataset_param, args.sigma)
+        return
+    if not args.store:
+        ap.error("give a STORE or --curve DATASET")
     reg = get_registry()
     with ResultStore(args.store, readonly=True) as store:
         entries = build_leaderboard(store, dataset=args.dataset, info=reg.metric_info(), sort="bits_per_point")
