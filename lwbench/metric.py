@@ -225,7 +225,7 @@ class SequenceMetric(_Metric, abc.ABC):
     """Computes metric ids over a sequence (needs ground-truth poses).
 
     ``in_default_run``: whether a run with poses computes it unless told otherwise. A metric that
-    is slow for what most runs ask (KISS-ICP: ~17 s on the README's run) declares ``False`` and
+    is slow for what most runs ask (KISS-ICP: +30 % on the README's main job) declares ``False`` and
     runs only when named (``lwbench run --metric NAME``, a run file's ``metrics = [...]``) -- the
     same declaration a codec makes, so no part of lwbench knows such a metric by name."""
 
