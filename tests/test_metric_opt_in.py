@@ -150,3 +150,12 @@ def test_kiss_is_opt_in_and_listed_so(monkeypatch):
 def test_dataset_spec_is_unchanged_by_named_metrics(registry):
     plan = plan_run(registry, dataset="posed", codecs=["pass"], metrics=["slow_frames", "slow_frames"])
     assert plan.metrics == ("slow_frames",) and plan.dataset == DatasetSpec("posed", {})
+
+
+def test_a_gate_names_opt_in_metrics_like_the_command_line():
+    from lwbench.gates import gate_plan
+
+    _, plan = gate_plan("raw", dataset="sim", frames=1, sequence_metrics=True, metrics=["kiss"])
+    assert plan.metrics == ("kiss",)
+    _, plain = gate_plan("raw", dataset="sim", frames=1, sequence_metrics=True)
+    assert plain.metrics == ()
