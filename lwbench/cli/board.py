@@ -12,7 +12,7 @@ from lwbench.errors import LwbenchError, ParameterError, StoreError
 
 from .app import app, registry
 from .options import OUTPUT, RESULTS, ColumnsOpt, FormatOpt, MinCoverage, ShownDataset, SortOpt, StoreOpt
-from .output import console, escape, print_board, wanted_columns
+from .output import console, escape, print_board, wanted_columns, writable_folder
 from .running import BENCHMARK, board_sort
 
 
@@ -95,6 +95,9 @@ def rd(
     path = _store(store)
     with ResultStore(path, readonly=True) as results:
         entries = build_leaderboard(results, dataset=dataset, info=info)
+    if reference is not None and reference not in {e.codec for e in entries}:
+        shown = ", ".join(sorted({e.codec for e in entries})) or "none"
+        raise ParameterError(f"--reference {reference!r}: no such codec in {path} (stored: {shown})")
     left_out: list = []
     curves = curves_from_entries(entries, distortion, rate=rate, info=info, left_out=left_out)
     summary = summarise(curves, unit=info[distortion].unit, at_rate=at_rate, at_distortion=at_distortion,
@@ -150,6 +153,7 @@ def report(
     """Write a self-contained HTML report: sortable leaderboard, RD curves, runtime, a gallery."""
     from lwbench.report import write_report
 
+    writable_folder(out)
     reg = registry()
     if config is not None:
         from lwbench.run import Study

@@ -12,7 +12,7 @@ from lwbench.errors import DataFormatError, ParameterError
 
 from .app import app, registry
 from .options import OUTPUT, CodecName, CodecSettings, DatasetArg, DatasetParams, Frames, Seed, words
-from .output import console, escape, progress_bar
+from .output import console, escape, progress_bar, writable_folder
 
 PANEL = "Files"
 
@@ -43,6 +43,7 @@ def encode(
     one .lwbs stream file; the bytes are what lwbench run measures and what crosses the link."""
     from lwbench.transcode import codec_config, encode_dataset
 
+    writable_folder(out)
     reg = registry()
     config = codec_config(reg, codec, words(param), seed)
     spec, ds = open_source(reg, source, dataset_param, seed, frames)
@@ -74,6 +75,8 @@ def decode(
 
     if not file.exists():
         raise DataFormatError(f"{file} does not exist")
+    # A bag's folder must not exist yet (the bag writer makes it): check the folder it goes in.
+    writable_folder(out.parent if format == "bag" else out, "--out" if format != "bag" else "--out's parent")
     summary = decode_payloads(registry(), open_payloads(file), out, fmt=format, overrides=words(param),
                               storage=storage)
     where = summary.files[0] if format == "bag" else out

@@ -3,11 +3,18 @@
 from __future__ import annotations
 
 import sys
+import tempfile
+from pathlib import Path
 
 from rich.console import Console
 from rich.markup import escape
 
-__all__ = ["console", "err_console", "escape", "print_board", "print_error", "progress_bar", "wanted_columns"]
+from lwbench.errors import ParameterError
+
+__all__ = [
+    "console", "err_console", "escape", "print_board", "print_error", "progress_bar", "wanted_columns",
+    "writable_folder",
+]
 
 # Off a terminal (CI logs, pipes) rich would wrap tables at 80 columns; leaderboards are wide.
 console = Console(width=None if sys.stdout.isatty() else 200)
@@ -17,6 +24,24 @@ err_console = Console(stderr=True, soft_wrap=True)
 def print_error(message: str) -> None:
     """The one line a user error gets (escaped: ``pip install 'lwbench[ray]'`` is not markup)."""
     err_console.print(f"[bold red]error:[/] {escape(message)}", highlight=False)
+
+
+def writable_folder(path: Path, option: str = "--out") -> Path:
+    """Create an output folder now and prove a file can be written in it -- before any work, so
+    that an unwritable ``--out`` (``/proc/x``, a file, a read-only mount) costs no simulation,
+    encoding or streaming. A real write, not ``os.access``: root passes every access check."""
+    if path.exists() and not path.is_dir():
+        raise ParameterError(f"{option} {path}: exists and is not a folder")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ParameterError(f"{option} {path}: cannot create the folder ({exc.strerror or exc})") from exc
+    try:
+        with tempfile.TemporaryFile(dir=path):
+            pass
+    except OSError as exc:
+        raise ParameterError(f"{option} {path}: cannot write in the folder ({exc.strerror or exc})") from exc
+    return path
 
 
 def progress_bar(*, eta: bool = False):
@@ -43,7 +68,9 @@ def wanted_columns(columns: str | None, available) -> tuple[str, ...] | None:
 
     if not columns:
         return None
-    wanted = tuple(c.strip() for c in columns.split(",") if c.strip())
+    wanted = tuple(c.strip() for c in columns.split(","))
+    if not all(wanted):
+        raise ParameterError(f"--columns {columns!r}: an empty metric id (two commas, or one at an end)")
     check_metric_ids(list(wanted), available, "--columns")
     return wanted
 

@@ -45,13 +45,17 @@ def run(
     workers: Annotated[int, typer.Option(
         help="Parallel worker processes (frames in parallel).", min=1, rich_help_panel=EXECUTION)] = 1,
     seed: Seed = 0,
-    sequence_metrics: Annotated[bool, typer.Option(
-        help="Localization/occupancy metrics when poses exist.", rich_help_panel=METRICS)] = True,
+    # Only the negative flag (the metrics are on by default): a --x/--no-x pair is wider than typer's
+    # option column at 80 columns, where rich cut it to "--no-sequence-met…".
+    no_sequence_metrics: Annotated[bool, typer.Option(
+        "--no-sequence-metrics", help="Skip the localization and occupancy metrics (run when the dataset has poses).",
+        rich_help_panel=METRICS)] = False,
     retry_failed: Annotated[bool, typer.Option(help="Re-evaluate stored failures.", rich_help_panel=EXECUTION)] = False,
     force: Annotated[bool, typer.Option(
         "--force", help="Recompute every row, even those already stored.", rich_help_panel=EXECUTION)] = False,
     metric_param: Annotated[list[str] | None, typer.Option(
-        "--metric-param", help="METRIC.KEY=VALUE, e.g. geometry.peak=59.70 (part of the key).",
+        "--metric-param", help="METRIC.KEY=VALUE: a metric's setting, part of each row's key "
+        "(geometry.peak: the PSNR peak, m).",
         rich_help_panel=METRICS)] = None,
     sort: SortOpt = None,
     columns: ColumnsOpt = None,
@@ -89,8 +93,9 @@ def run(
     else:
         request = RunRequest.from_words(
             reg, dataset=dataset, dataset_params=words(dataset_param), codecs=words(codec), params=words(param),
-            metric_params=words(metric_param), seed=seed, frames=frames, sequence_metrics=sequence_metrics,
+            metric_params=words(metric_param), seed=seed, frames=frames, sequence_metrics=not no_sequence_metrics,
             store=store, workers=workers, **options)
+    _refuse_conflicts(request)
     info = reg.metric_info()
     wanted = wanted_columns(columns, info)
     if sort is not None:
@@ -122,6 +127,16 @@ def run(
         if len(study.plans) == 1:
             console.print(f"dataset: {escape(study.plans[0].dataset.label)}")
         print_board(entries, sort, wanted, info)
+
+
+def _refuse_conflicts(request) -> None:
+    """Options that contradict each other are refused, not resolved behind the user's back (the
+    runner would isolate an --in-process run with --workers 2; --address alone would be ignored)."""
+    if not request.isolate and request.workers > 1:
+        raise ParameterError(f"--in-process evaluates in this process, one at a time: it cannot take --workers "
+                             f"{request.workers} (leave out one of them)")
+    if request.address is not None and request.executor != "ray":
+        raise ParameterError(f"--address {request.address} names a Ray cluster: it needs --executor ray")
 
 
 def board_sort(info) -> str:

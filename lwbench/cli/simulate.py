@@ -10,7 +10,7 @@ import typer
 from .app import app, registry
 from .files import PANEL, open_source
 from .options import DATA, OUTPUT, Frames
-from .output import console, escape, progress_bar
+from .output import console, escape, progress_bar, writable_folder
 
 
 @app.command(rich_help_panel=PANEL)
@@ -27,6 +27,7 @@ def simulate(
     The simulator is the default dataset (the installed dataset that declares ``is_default``)."""
     from lwbench.io import write_kitti_sequence
 
+    writable_folder(out)
     reg = registry()
     words = [f"scene={scene}", f"seed={seed}", *([f"sensor={sensor}"] if sensor is not None else [])]
     _, ds = open_source(reg, None, words, seed, frames)
