@@ -162,8 +162,14 @@ def report(
         from lwbench.run import Study
         from lwbench.run.config import read_run_file
 
+        from .output import progress
+        from .running import RunProgress
+
         request = read_run_file(config).with_options(store=store)
-        outcome = Study.prepare(request, reg).run()
+        events: dict = {}  # one RunProgress per runner (a study has one per dataset x seed)
+        with progress() as shown:
+            outcome = Study.prepare(request, reg).run(
+                on_progress=lambda runner, event: events.setdefault(id(runner), RunProgress(shown, runner))(event))
         done = [(s.evaluated, s.skipped, s.failed) for s in outcome.summaries]
         console.print(f"{escape(str(config))}: evaluated {sum(d[0] for d in done)}, cached {sum(d[1] for d in done)}, "
                       f"{sum(d[2] for d in done)} failure(s) -> {escape(str(request.store_path))}")

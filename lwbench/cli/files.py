@@ -12,7 +12,7 @@ from lwbench.errors import DataFormatError, ParameterError
 
 from .app import app, registry
 from .options import OUTPUT, CodecName, CodecSettings, DatasetArg, DatasetParams, Frames, Seed, words
-from .output import console, escape, progress_bar, writable_folder
+from .output import console, escape, progress, writable_folder
 
 PANEL = "Files"
 
@@ -47,10 +47,9 @@ def encode(
     reg = registry()
     config = codec_config(reg, codec, words(param), seed)
     spec, ds = open_source(reg, source, dataset_param, seed, frames)
-    with progress_bar() as progress:
-        task = progress.add_task(f"encoding with {config.label}", total=None)
+    with progress() as shown, shown.phase(f"encoding with {config.label}") as phase:
         summary = encode_dataset(reg, ds, config, out, stream=stream, frames=frames, source=spec.label,
-                                 on_frame=lambda done, n: progress.update(task, completed=done, total=n))
+                                 on_frame=lambda done, n: phase.update(done, total=n))
     ratio = summary.raw_bytes / summary.payload_bytes if summary.payload_bytes else float("nan")
     console.print(
         f"wrote {summary.frames} frame(s), {summary.payload_bytes:,} bytes ({ratio:.1f}x smaller than float32 "

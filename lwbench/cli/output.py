@@ -12,7 +12,7 @@ from rich.markup import escape
 from lwbench.errors import ParameterError
 
 __all__ = [
-    "console", "err_console", "escape", "print_board", "print_error", "progress_bar", "wanted_columns",
+    "console", "err_console", "escape", "print_board", "print_error", "progress", "wanted_columns",
     "writable_folder",
 ]
 
@@ -44,22 +44,12 @@ def writable_folder(path: Path, option: str = "--out") -> Path:
     return path
 
 
-def progress_bar(*, eta: bool = False):
-    """A progress bar on a terminal (nothing when stdout is a pipe or a file)."""
-    from rich.progress import (
-        BarColumn,
-        MofNCompleteColumn,
-        Progress,
-        TextColumn,
-        TimeElapsedColumn,
-        TimeRemainingColumn,
-    )
+def progress():
+    """The phases of a long command: a bar on a terminal, plain lines on stderr elsewhere (see
+    :mod:`lwbench.progress`)."""
+    from lwbench.progress import Progress
 
-    columns = [TextColumn("[progress.description]{task.description}"), BarColumn(), MofNCompleteColumn(),
-               TimeElapsedColumn()]
-    if eta:
-        columns += [TextColumn("eta"), TimeRemainingColumn()]
-    return Progress(*columns, console=console, transient=False, disable=not sys.stdout.isatty())
+    return Progress(console=err_console)
 
 
 def wanted_columns(columns: str | None, available) -> tuple[str, ...] | None:

@@ -3,12 +3,13 @@ the :class:`~lwbench.run.Study`, print the board of what it asked for."""
 
 from __future__ import annotations
 
+import importlib.util
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
-from lwbench.errors import ParameterError
+from lwbench.errors import MissingDependencyError, ParameterError
 
 from .app import app, registry
 from .options import (
@@ -27,7 +28,7 @@ from .options import (
     Sweeps,
     words,
 )
-from .output import console, err_console, escape, print_board, progress_bar, wanted_columns
+from .output import console, err_console, escape, print_board, progress, wanted_columns
 
 BENCHMARK = "Benchmark"
 #: lwbench.run.DEFAULT_TIMEOUT_S, written out: importing lwbench.run here would slow every command's start.
@@ -137,6 +138,8 @@ def _refuse_conflicts(request) -> None:
                              f"{request.workers} (leave out one of them)")
     if request.address is not None and request.executor != "ray":
         raise ParameterError(f"--address {request.address} names a Ray cluster: it needs --executor ray")
+    if request.executor == "ray" and importlib.util.find_spec("ray") is None:  # before any work starts
+        raise MissingDependencyError("--executor ray needs Ray, which is not installed: pip install 'lwbench[ray]'")
 
 
 def board_sort(info) -> str:
@@ -147,15 +150,34 @@ def board_sort(info) -> str:
 
 
 def _run_with_progress(runner):
-    with progress_bar(eta=True) as progress:
-        tasks: dict[str, int] = {}
+    with progress() as shown:
+        return runner.run(RunProgress(shown, runner))
 
-        def on_progress(event) -> None:
-            if event.phase not in tasks:
-                title = "frames" if event.phase == "frames" else "sequence metrics"
-                tasks[event.phase] = progress.add_task(title, total=event.total)
-            row = event.row
-            what = f"{row.codec} frame {row.frame}" if row.kind == "frame" else f"{row.codec} · {row.part}"
-            progress.update(tasks[event.phase], total=event.total, completed=event.done, description=what)
 
-        return runner.run(on_progress)
+class RunProgress:
+    """A runner's events as phases: the frames (encode, decode and frame metrics of every codec;
+    a simulated dataset's scans are simulated here too, frame by frame), then the sequence
+    metrics. The frames phase is open from the start, so that a long first frame (a simulation,
+    a worker starting) is already reported."""
+
+    def __init__(self, shown, runner) -> None:
+        self.shown, self.runner = shown, runner
+        self.frames = shown.phase("frames (encode, decode, frame metrics)")
+        self.sequence = None
+
+    def __call__(self, event) -> None:
+        row = event.row
+        if event.phase == "frames":
+            self.frames.update(event.done, total=event.total, what=f"last: {row.codec} frame {row.frame}",
+                               part=row.codec)
+            if event.done >= event.total and getattr(self.runner, "sequence", None) is not None:
+                self._sequence_phase()
+            return
+        phase = self._sequence_phase()
+        phase.update(event.done, total=event.total, what=f"last: {row.codec} · {row.part}", part=row.codec)
+
+    def _sequence_phase(self):
+        if self.sequence is None:
+            self.frames.finish()
+            self.sequence = self.shown.phase("sequence metrics")
+        return self.sequence

@@ -56,11 +56,18 @@ def run_study(
     *,
     on_run: Callable[[StreamRun], None] | None = None,
     on_start: Callable[[CodecConfig, LinkModel], None] | None = None,
+    on_frame: Callable[[int, int], None] | None = None,
 ) -> StudyResult:
+    """Every (link, codec) stream in turn; ``on_frame(done, n)`` while the frames are read first
+    (for the simulator: simulated, minutes for a long sequence), ``on_start`` before each stream."""
     ds = dataset.build(registry)
     if len(ds) < settings.frames:
         raise ParameterError(f"stream: {dataset.label} has {len(ds)} frames, asked for {settings.frames}")
-    frames = [ds[i] for i in range(settings.frames)]
+    frames = []
+    for i in range(settings.frames):
+        frames.append(ds[i])
+        if on_frame is not None:
+            on_frame(i + 1, settings.frames)
     rate = frames[0].sensor.rate_hz
     reference = reference_map(frames, settings.voxel)
     runs = []
