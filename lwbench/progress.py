@@ -59,6 +59,7 @@ class Phase:
         self.by_part: Counter[str] = Counter()
         self.started = owner.clock()
         self.last_line = float("-inf")
+        self.quiet = False  # not announced yet: the first update prints at once
         self.finished = False
         self._task = None
 
@@ -171,15 +172,19 @@ class Progress:
         if self._bar is not None:
             self._bar.__exit__(*exc)
 
-    def phase(self, title: str, total: int | None = None) -> Phase:
-        """Start a phase (its first line, or its bar)."""
+    def phase(self, title: str, total: int | None = None, *, announce: bool = True) -> Phase:
+        """Start a phase (its first line, or its bar). ``announce=False``: its first line waits for
+        its first update or one interval, so that a command refused at once prints only its error."""
         phase = Phase(self, title, total)
         with self._lock:
             self.phases.append(phase)
         if self._bar is not None:
             phase._task = self._bar.add_task(title, total=total)
-        else:
+        elif announce:
             self._print(phase, force=True)
+        else:
+            phase.last_line = phase.started
+            phase.quiet = True
         return phase
 
     # -- what phases call --------------------------------------------------------------------
@@ -194,6 +199,8 @@ class Progress:
         if self._bar is not None:
             self._bar.update(phase._task, completed=phase.done, total=phase.total, description=phase.title)
             return
+        if phase.quiet and not phase.done:  # never announced, nothing done: nothing to say
+            return
         elapsed = format_duration(self.clock() - phase.started)
         count = f"{phase.done}/{phase.total}" if phase.total else f"{phase.done}"
         self._write(f"lwbench: {phase.title} done: {count} in {elapsed}")
@@ -203,18 +210,21 @@ class Progress:
         with self._lock:
             running = [p for p in self.phases if not p.finished]
         for phase in running:
-            self._print(phase)
+            self._print(phase, beat=True)
 
     def _beat(self) -> None:
         while not self._stop.wait(min(self.interval_s, 1.0)):
             self.tick()
 
-    def _print(self, phase: Phase, force: bool = False) -> None:
+    def _print(self, phase: Phase, force: bool = False, beat: bool = False) -> None:
+        """A phase's line, if it is due: always when ``force``d, at the first update of a phase not
+        announced yet, else once ``interval_s`` has passed since its last line."""
         now = self.clock()
         with self._lock:
-            if phase.finished or (not force and now - phase.last_line < self.interval_s):
+            due = force or (phase.quiet and not beat) or now - phase.last_line >= self.interval_s
+            if phase.finished or not due:
                 return
-            phase.last_line = now
+            phase.last_line, phase.quiet = now, False
         self._write(phase.line())
 
     def _write(self, text: str) -> None:

@@ -46,6 +46,25 @@ def test_plain_lines_start_beat_at_most_once_an_interval_and_end():
     ]
 
 
+def test_a_phase_not_announced_waits_for_its_first_update_or_one_interval():
+    out, clock = io.StringIO(), Clock()
+    with Progress(live=False, interval_s=10, stream=out, clock=clock, heartbeat=False) as shown:
+        quiet = shown.phase("frames", announce=False)
+        clock.t = 5
+        shown.tick()  # refused at once (a bad option found in the first second) prints only its error
+        assert out.getvalue() == ""
+        clock.t = 10
+        shown.tick()
+        assert out.getvalue() == "lwbench: frames 0 done · 10s\n"
+        clock.t = 11
+        quiet.update(1, total=2)
+    assert out.getvalue().splitlines()[1:] == ["lwbench: frames done: 1/2 in 11s"]
+    out = io.StringIO()
+    with Progress(live=False, interval_s=10, stream=out, clock=Clock(), heartbeat=False) as shown:
+        shown.phase("frames", announce=False)  # nothing to do (every row cached): nothing said
+    assert out.getvalue() == ""
+
+
 def test_the_heartbeat_runs_on_its_own_while_the_work_blocks():
     out = io.StringIO()
     with Progress(live=False, interval_s=0.05, stream=out) as shown:

@@ -166,7 +166,7 @@ class RunProgress:
 
     def __init__(self, shown, runner) -> None:
         self.shown, self.runner = shown, runner
-        self.frames = shown.phase("frames (encode, decode, frame metrics)")
+        self.frames = shown.phase("frames (encode, decode, frame metrics)", announce=False)
         self.sequence = None
 
     def __call__(self, event) -> None:
