@@ -46,9 +46,7 @@ class LwbenchGroup(TyperGroup):
         except typer.TyperException as exc:  # click's errors (typer vendors click: this is their base)
             if not standalone_mode:
                 raise
-            if type(exc).__name__ == "NoArgsIsHelpError":  # `lwbench` alone: the help, as click prints it
-                exc.show()
-            else:
+            if type(exc).__name__ != "NoArgsIsHelpError":  # `lwbench` alone: typer has printed the help
                 print_error(usage_line(exc))
             sys.exit(exc.exit_code)
         except typer.Abort:
