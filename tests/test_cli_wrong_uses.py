@@ -123,3 +123,8 @@ def test_help_at_80_columns_shows_every_option_whole(command):
     shown = [p for p in params if not getattr(p, "hidden", False)]
     for opt in (o for p in shown for o in (*p.opts, *getattr(p, "secondary_opts", ())) if o.startswith("--")):
         assert re.search(rf"{re.escape(opt)}(?![\w-])", res.stdout), (opt, res.stdout)
+
+
+def test_lwbench_alone_prints_the_help_once():
+    res = runner.invoke(app, [], catch_exceptions=False)
+    assert res.exit_code == 2 and res.output.count("Usage: lwbench") == 1 and "error:" not in res.output
