@@ -14,7 +14,7 @@ columns. Three things make the default board fit 120 columns with every default 
 - **a light table**: a rule under the header and two spaces between columns, no box.
 
 Narrower than that, columns are left out -- never a number folded -- and named under the table:
-runtimes first, then ids with no role, guarded ids, rates, and the distortions last (the board's
+runtimes first, then ids with no role, rates, guarded ids, and the distortions last (the board's
 order puts the task metrics, which declare the highest ``order``, at its right end, so among the
 distortions the leftmost goes first); the sort column is never left out. Headers and the order
 come from what each metric declares (:class:`lwbench.MetricId`): no metric is known by name.
@@ -38,7 +38,8 @@ __all__ = ["board_columns", "board_table", "board_title", "flag_notes", "short_h
 # Units a reader needs; shares, counts and the ratio are plain numbers (as leaderboard.header_name).
 _PLAIN_UNITS = ("", "share", "pts", "frames", "x")
 # Which columns a narrow terminal leaves out first (lower first): by what the metric declares.
-_RUNTIME, _PLAIN, _GUARDED, _RATE, _DISTORTION = range(5)
+# A rate beside the headline ratio says the same thing in other units, so it goes before a guarded id.
+_RUNTIME, _PLAIN, _RATE, _GUARDED, _DISTORTION = range(5)
 
 
 def short_header(metric: str, info: Mapping[str, MetricId] | None) -> str:
