@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lwbench.leaderboard import LeaderboardEntry, build_leaderboard, format_value, header_name
+from lwbench.leaderboard import FLAG_NOTES, LeaderboardEntry, build_leaderboard, format_value, header_name
 from lwbench.metric import MetricId
 from lwbench.plotting import pyplot, save_png_svg
 from lwbench.rd import curves_from_entries
@@ -307,6 +307,8 @@ def write_report(store_path: Path, out: Path, registry: Registry, *, dataset: st
         "rows a quality flag ranks last are grey and stay last; click a column to sort.</p>",
         "<h2>Leaderboard</h2>",
         _table(entries, info),
+        *(f"<p class='note'>{html.escape(note)}</p>" for flag, note in FLAG_NOTES.items()
+          if any(flag in e.flags for e in entries)),
         "<h2>Rate-distortion and runtime</h2>",
         *(f"<figure><figcaption>{html.escape(f.title)}</figcaption>{f.svg}</figure>" for f in figures),
         "<h2>Gallery</h2><div class='gallery'>",

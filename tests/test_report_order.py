@@ -109,6 +109,7 @@ def test_every_click_sorts_as_the_board_does(tmp_path):
     page = write_report(store_path, tmp_path / "out", REGISTRY)
     board = _Board()
     board.feed(page.read_text())
+    assert "sensor guessed: the dataset&#x27;s beam table was guessed" in page.read_text()  # said once, under it
     labels = [(r["texts"][0], r["texts"][1]) for r in board.rows]
     with ResultStore(store_path, readonly=True) as store:
         default = build_leaderboard(store, info=INFO)
