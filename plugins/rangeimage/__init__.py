@@ -52,6 +52,7 @@ from lwbench_plugins.rangeimage.layers import (
 from lwbench_plugins.rangeimage.transform import PREDICTORS, pack_image, unpack_image
 
 from lwbench import (
+    MAX_COORDINATE,
     SENSOR_PRESETS,
     Frame,
     Param,
@@ -174,10 +175,12 @@ class RangeImageCodec(RepresentationCodec):
             self.config["shuffle"] == "auto" and self.config["mode"] == "quantized"
         )
         codes = code_width(layers)
+        reach = _reach(frame.points, sensor.max_range)
         meta: dict[str, Any] = {
             "sensor": self.sensor_meta(sensor), "mode": self.config["mode"], "body": body, "predict": predict,
             "shuffle": shuffle, "columns": layers.grid.columns, "offset_step": q, "width": width, "code_width": codes,
             "cells": int(layers.mask.sum()), "overflow": len(layers.ov_values), "exceptions": len(layers.exceptions),
+            "reach_m": reach,
             # LZMA2's literal coder conditions on the previous byte, which predicts the offset codes
             # better than a row-delta does (KITTI frame 0: 27.0 vs 29.0 kB); zstd's Huffman does not.
             "code_predict": "none" if body == "lzma" else predict,
@@ -209,7 +212,18 @@ class RangeImageCodec(RepresentationCodec):
         layers, q, ranges = self._decode(data)
         dirs, _ = directions(layers, q)
         points = np.concatenate([dirs * ranges[:, None], layers.exceptions.astype(np.float64)])
-        return checked_cloud(points, self.name)
+        return checked_cloud(points, self.name, max_range=self._reach_field(data))
+
+    def _reach_field(self, data: bytes) -> float | None:
+        """The farthest return the encoder saw (``reach_m``, never below its sensor's max range):
+        the decode's coordinate bound. Version 4 keeps returns past the sensor model's max range
+        (a real Ouster sees past its preset's 120 m), so the sensor's reach alone is not the bound."""
+        reach = self.read_payload(data).meta.get("reach_m")
+        if reach is None:
+            return None  # an early version-4 payload: the ceiling (lwbench.MAX_COORDINATE) only
+        if not isinstance(reach, (int, float)) or isinstance(reach, bool) or not 0 < reach <= MAX_COORDINATE:
+            raise PayloadError(f"rangeimage payload: reach_m {reach!r} outside (0, {MAX_COORDINATE:g}] m")
+        return float(reach)
 
     def decode_image(self, data: bytes) -> tuple[SensorModel, np.ndarray]:
         """The grid (as a sensor model) and its layer-0 range image (float32, 0 = no return)."""
@@ -310,6 +324,18 @@ def _hole_filled(mask: np.ndarray, values: np.ndarray) -> np.ndarray:
     first = np.where(mask.any(axis=1), mask.argmax(axis=1), 0)
     idx = np.where(idx < 0, first[:, None], idx)
     return np.take_along_axis(full, idx, axis=1)
+
+
+def _reach(points: np.ndarray, max_range: float) -> float:
+    """``reach_m``: the scan's farthest return, rounded up to the metre, at least the sensor's max
+    range. A scan past :data:`lwbench.MAX_COORDINATE` is refused here rather than written as a
+    payload the decoder would refuse."""
+    far = float(np.linalg.norm(points.astype(np.float64), axis=1).max()) if len(points) else 0.0
+    if far > MAX_COORDINATE:
+        raise ParameterError(
+            f"rangeimage: a point {far:.4g} m from the sensor; no LiDAR return is farther than {MAX_COORDINATE:g} m"
+        )
+    return float(min(MAX_COORDINATE, np.ceil(max(far, max_range))))
 
 
 def _check_returns(layers: Layers) -> None:
