@@ -45,6 +45,14 @@ class Dataset(abc.ABC):
     def has_poses(self) -> bool:
         """Whether frames carry ground-truth poses (sequence metrics need them)."""
 
+    @property
+    def sensor_guessed(self) -> bool:
+        """Whether the dataset's sensor model is a guess (derived without ring labels, a preset
+        snapped to by the elevation histogram): every row scored on it carries the board flag
+        ``sensor guessed``, because the range metrics stand on that beam table. Default: no (a
+        simulator's or a named sensor is exact); the file and bag loaders say when they guessed."""
+        return False
+
     def traversals(self) -> list[list[int]]:
         """Frame indices of each separate drive through the same place (default: one drive, every
         frame). A dataset with two -- a mapping drive and a later tracking drive -- lets the

@@ -19,6 +19,14 @@ metric: covering less than 90 % of the returns -- ``--min-coverage`` -- flags it
 failed ICP registrations flag it, and originals that already fail ICP make its pose figures
 "not meaningful"). Flags travel in every format (a ``flags`` list in JSON) and the default order
 puts unflagged configurations first, so a codec cannot rank first by throwing the scan away.
+
+One flag is about the data, not the codec: ``sensor_guessed`` (shown ``sensor guessed``) when the
+rows were scored on a sensor model the loader guessed (no ring field, no scan order, no sensor
+file: :attr:`lwbench.Dataset.sensor_guessed`, stored with each row). The range metrics pair
+returns within windows sized by that beam table, so their figures are as right as the guess. It
+is a *caveat* (:data:`CAVEATS`), not a quality flag: it moves no row (every configuration of such
+a dataset carries it; ranking them all last would only hide their quality flags) and keeps
+nothing off the rate-distortion curves.
 """
 
 from __future__ import annotations
@@ -28,7 +36,7 @@ import io
 import json
 import math
 from collections import Counter, defaultdict
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -40,6 +48,8 @@ from lwbench.params import config_label
 from lwbench.store import ResultRow, ResultStore
 
 __all__ = [
+    "CAVEATS",
+    "FLAG_NOTES",
     "FLAG_TEXT",
     "LeaderboardEntry",
     "build_leaderboard",
@@ -55,7 +65,15 @@ __all__ = [
 STATS = ("mean", "std", "median", "p95")
 
 #: The flags the board itself raises (the others come with a metric's Guard, and their text too).
-FLAG_TEXT = {"failed_rows": "failed rows", "frames_differ": "other frames"}
+FLAG_TEXT = {"failed_rows": "failed rows", "frames_differ": "other frames", "sensor_guessed": "sensor guessed"}
+#: Flags about the data, not the codec: shown like the others, but they move no row.
+CAVEATS = frozenset({"sensor_guessed"})
+#: What a board flag means, said once under a table that shows it.
+FLAG_NOTES = {
+    "sensor_guessed": "sensor guessed: the dataset's beam table was guessed from the data (no ring field, scan "
+    "order or sensor file), and the range metrics pair returns on it (a note on the data: it moves no row) -- "
+    "name the sensor (--dataset-param sensor=PRESET|sensor.json) for exact figures; docs/metrics.md",
+}
 
 
 @dataclass
@@ -104,6 +122,12 @@ class LeaderboardEntry:
 
     def flag_text(self, flag: str) -> str:
         return self.flag_texts.get(flag) or FLAG_TEXT.get(flag, flag)
+
+    @property
+    def ranked_last(self) -> bool:
+        """Whether a quality flag sends this configuration after the unflagged ones (a caveat
+        about the data -- :data:`CAVEATS` -- does not)."""
+        return any(f not in CAVEATS for f in self.flags)
 
     @property
     def flags_text(self) -> str:
@@ -229,7 +253,8 @@ def build_leaderboard(
     limits: Mapping[str, float] | None = None,
 ) -> list[LeaderboardEntry]:
     """Entries sorted by ``sort`` (default: :func:`headline_metric`; best first, in the direction
-    its metric declares; flagged configurations after the others unless ``flagged_last=False``).
+    its metric declares; configurations with a quality flag -- any flag but a caveat,
+    :attr:`LeaderboardEntry.ranked_last` -- after the others unless ``flagged_last=False``).
     ``info`` maps metric ids to their declarations (default: the installed metrics',
     ``Registry.metric_info()``) -- sort directions and the quality guards come from there;
     ``limits`` replaces guards' limits by their ``setting`` name (``min_coverage=`` is
@@ -280,6 +305,8 @@ def build_leaderboard(
         entry.frame_set = tuple(sorted(frames))
         entry.stats = {k: _summarise(v) for k, v in per_metric.items()}
         _flag(entry, guards, limits)
+        if any(r.sensor_guessed for r in rows):
+            entry.flags.append("sensor_guessed")
         entries.append(entry)
     _mark_swept_and_frames(entries)
     key = sort or headline_metric(info)
@@ -291,7 +318,7 @@ def build_leaderboard(
     def sort_key(e: LeaderboardEntry):
         v = e.shown(key)
         missing = v is None or (isinstance(v, float) and math.isnan(v))
-        flagged = bool(e.flags) and flagged_last
+        flagged = e.ranked_last and flagged_last
         return (e.dataset, flagged, missing, 0.0 if missing else (-v if desc else v), e.label)
 
     return sorted(entries, key=sort_key)
@@ -337,17 +364,21 @@ def table_rows(
     info: Mapping[str, MetricId] | None = None,
     *,
     with_std: bool = False,
+    name: Callable[[str, Mapping[str, MetricId] | None], str] = header_name,
+    fail_column: bool = True,
 ) -> tuple[list[str], list[list[str]]]:
     """Header and formatted cells; the dataset column only when there is more than one, the
-    flags column only when some entry is flagged."""
+    flags column only when some entry is flagged, the ``fail`` column always (``fail_column``)
+    or only when some entry has failed rows. ``name`` writes a metric's header."""
     many = len({e.dataset for e in entries}) > 1
     flagged = any(e.flags for e in entries)
+    fails = fail_column or any(e.failures for e in entries)
     header = [
         *(["dataset"] if many else []),
         "codec",
         "frames",
-        "fail",
-        *(header_name(c, info) for c in columns),
+        *(["fail"] if fails else []),
+        *(name(c, info) for c in columns),
         *(["flags"] if flagged else []),
     ]
     rows = [
@@ -355,7 +386,7 @@ def table_rows(
             *([e.dataset] if many else []),
             e.label,
             str(e.frames),
-            str(e.failures),
+            *([str(e.failures)] if fails else []),
             *(_cell(e, c, with_std) for c in columns),
             *([e.flags_text] if flagged else []),
         ]

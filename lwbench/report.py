@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lwbench.leaderboard import LeaderboardEntry, build_leaderboard, format_value, header_name
+from lwbench.leaderboard import FLAG_NOTES, LeaderboardEntry, build_leaderboard, format_value, header_name
 from lwbench.metric import MetricId
 from lwbench.noise_floor import draw_floor
 from lwbench.plotting import pyplot, save_png_svg
@@ -34,7 +34,7 @@ from lwbench.registry import Registry
 from lwbench.run.record import DECODED, ORIGINAL, original_key
 from lwbench.store import ResultStore
 
-__all__ = ["write_report", "ids_with_role"]
+__all__ = ["BOARD_ORDER_JS", "write_report", "ids_with_role"]
 
 
 def ids_with_role(info: Mapping[str, MetricId], role: str) -> tuple[str, ...]:
@@ -192,6 +192,9 @@ def _gallery(store: ResultStore, entries: list[LeaderboardEntry]) -> list[tuple[
 
 
 def _table(entries: list[LeaderboardEntry], info: Mapping[str, MetricId]) -> str:
+    """The board as a table the page's script sorts: each row says its dataset group
+    (``data-group``, in the board's dataset order) and whether a quality flag ranks it last
+    (``data-last``), so a click sorts within the same order the terminal's board keeps."""
     # The board's default columns and every rate (bits per point beside the bytes).
     wanted = [i for i, m in info.items() if m.default or getattr(m, "role", "") == "rate"]
     cols = [c for c in wanted if any(e.value(c) is not None for e in entries)]
@@ -199,8 +202,9 @@ def _table(entries: list[LeaderboardEntry], info: Mapping[str, MetricId]) -> str
     columns = [("dataset", "text", "")] if many else []
     columns += [("codec", "text", "configuration"), ("frames", "num", ""), ("fail", "num", "failed rows")]
     columns += [(header_name(c, info), "num", f"{c}: {getattr(info.get(c), 'better', '')} is better") for c in cols]
-    columns.append(("flags", "text", "quality guard"))
+    columns.append(("flags", "text", "quality flags (grey rows rank last) and notes on the data"))
     head = "".join(f'<th data-type="{t}" title="{html.escape(d)}">{html.escape(n)}</th>' for n, t, d in columns)
+    groups = {ds: i for i, ds in enumerate(dict.fromkeys(e.dataset for e in entries))}
     rows = []
     for e in entries:
         cells = [*([html.escape(e.dataset)] if many else []), html.escape(e.label)]
@@ -208,37 +212,62 @@ def _table(entries: list[LeaderboardEntry], info: Mapping[str, MetricId]) -> str
         tds += f'<td data-v="{e.frames}">{e.frames}</td><td data-v="{e.failures}">{e.failures}</td>'
         for c in cols:
             v = e.shown(c)
-            if v is None or not math.isfinite(v):
+            if v is None or math.isnan(v):
                 text = "n/m" if e.value(c) is not None else "–"
                 tds += f'<td data-v="">{text}</td>'
+            elif math.isinf(v):  # lossless PSNR: ranks as the board ranks it, first when higher is better
+                tds += f'<td data-v="{"Infinity" if v > 0 else "-Infinity"}">{format_value(v)}</td>'
             else:
                 std = e.value(c, "std")
                 tip = f' title="± {std:.4g}"' if std else ""
                 tds += f'<td data-v="{v!r}"{tip}>{format_value(v)}</td>'
-        flags = e.flags_text
-        rows.append(f'<tr class="{"flagged" if e.flags else ""}">{tds}<td>{html.escape(flags)}</td></tr>')
+        last = int(e.ranked_last)
+        rows.append(f'<tr class="{"flagged" if last else ""}" data-group="{groups[e.dataset]}" data-last="{last}">'
+                    f'{tds}<td>{html.escape(e.flags_text)}</td></tr>')
     return f'<table id="board"><thead><tr>{head}</tr></thead><tbody>{"".join(rows)}</tbody></table>'
 
 
-_SCRIPT = """
-document.querySelectorAll('#board th').forEach((th, col) => {
-  th.addEventListener('click', () => {
-    const body = document.querySelector('#board tbody');
-    const rows = Array.from(body.rows);
-    const asc = th.dataset.sorted !== 'asc';
-    document.querySelectorAll('#board th').forEach(h => delete h.dataset.sorted);
-    th.dataset.sorted = asc ? 'asc' : 'desc';
-    const num = th.dataset.type === 'num';
-    const key = r => { const c = r.cells[col]; return num ? (c.dataset.v === '' ? null : parseFloat(c.dataset.v))
-                                                          : c.textContent; };
-    rows.sort((a, b) => {
-      const x = key(a), y = key(b);
-      if (x === null || y === null) return (x === null) - (y === null);
-      return (x < y ? -1 : x > y ? 1 : 0) * (asc ? 1 : -1);
-    });
-    rows.forEach(r => body.appendChild(r));
+# The order a click on column ``col`` gives -- the board's own (lwbench.leaderboard's sort key):
+# dataset group, rows a quality flag ranks last after the others, missing values last, the
+# column's values in the clicked direction, then the configuration's label. A click on the
+# dataset column orders the groups. Pure, so tests run it under node.
+BOARD_ORDER_JS = """
+function boardOrder(rows, col, asc, num, groupCol, labelCol) {
+  const key = r => num ? r.values[col] : r.texts[col];
+  const dir = asc ? 1 : -1;
+  return rows.slice().sort((a, b) => {
+    if (a.group !== b.group) return (a.group - b.group) * (col === groupCol ? dir : 1);
+    if (a.last !== b.last) return a.last - b.last;
+    const x = key(a), y = key(b);
+    if ((x === null) !== (y === null)) return x === null ? 1 : -1;
+    if (x !== null && col !== groupCol && x !== y) return (x < y ? -1 : 1) * dir;
+    const p = a.texts[labelCol], q = b.texts[labelCol];
+    return p < q ? -1 : p > q ? 1 : 0;
   });
-});
+}
+"""
+
+_SCRIPT = BOARD_ORDER_JS + """
+(() => {
+  const body = document.querySelector('#board tbody');
+  const heads = Array.from(document.querySelectorAll('#board th'));
+  const groupCol = heads.length && heads[0].textContent === 'dataset' ? 0 : -1;
+  const rows = Array.from(body.rows).map(r => ({
+    el: r, group: +r.dataset.group, last: +r.dataset.last,
+    values: Array.from(r.cells).map(c => (c.dataset.v === undefined || c.dataset.v === '') ? null
+                                                                                     : parseFloat(c.dataset.v)),
+    texts: Array.from(r.cells).map(c => c.textContent),
+  }));
+  heads.forEach((th, col) => {
+    th.addEventListener('click', () => {
+      const asc = th.dataset.sorted !== 'asc';
+      heads.forEach(h => delete h.dataset.sorted);
+      th.dataset.sorted = asc ? 'asc' : 'desc';
+      boardOrder(rows, col, asc, th.dataset.type === 'num', groupCol, groupCol + 1)
+        .forEach(r => body.appendChild(r.el));
+    });
+  });
+})();
 """
 
 _STYLE = """
@@ -277,9 +306,11 @@ def write_report(store_path: Path, out: Path, registry: Registry, *, dataset: st
         "<h1>lwbench report</h1>",
         f"<p>{len(entries)} configuration(s) on {len({e.dataset for e in entries})} dataset(s), from "
         f"<code>{html.escape(str(store_path))}</code>. Means over frames (hover a value for its std); "
-        "flagged rows (grey) fail the quality guard; click a column to sort.</p>",
+        "rows a quality flag ranks last are grey and stay last; click a column to sort.</p>",
         "<h2>Leaderboard</h2>",
         _table(entries, info),
+        *(f"<p class='note'>{html.escape(note)}</p>" for flag, note in FLAG_NOTES.items()
+          if any(flag in e.flags for e in entries)),
         "<h2>Rate-distortion and runtime</h2>",
         *(f"<figure><figcaption>{html.escape(f.title)}</figcaption>{f.svg}</figure>" for f in figures),
         "<h2>Gallery</h2><div class='gallery'>",

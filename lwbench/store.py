@@ -33,10 +33,14 @@ __all__ = ["ResultStore", "ResultRow", "evaluation_key", "result_key", "environm
 #    versions, parameters and settings), both part of the key.
 # 3: arrays are files beside the store (table artifact_files: their names); older stores' arrays
 #    stay readable in the artifacts table.
-SCHEMA_VERSION = 3
+# 4: rows say whether the dataset's sensor model was guessed (column sensor_guessed; rows of older
+#    stores read as not guessed -- nobody recorded it then). An older lwbench refuses a schema-4
+#    store rather than show its guessed rows without their flag.
+SCHEMA_VERSION = 4
 _COLUMNS = (
     "key", "kind", "dataset", "dataset_id", "frame", "codec", "codec_version", "params", "status", "error",
     "metrics", "extra", "seed", "lwbench_version", "versions", "machine", "created", "plugin_version", "scoring",
+    "sensor_guessed",
 )
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS results (
@@ -58,7 +62,8 @@ CREATE TABLE IF NOT EXISTS results (
     machine         TEXT NOT NULL,
     created         TEXT NOT NULL,
     plugin_version  TEXT NOT NULL DEFAULT '',
-    scoring         TEXT NOT NULL DEFAULT '[]'
+    scoring         TEXT NOT NULL DEFAULT '[]',
+    sensor_guessed  INTEGER NOT NULL DEFAULT 0
 );
 CREATE INDEX IF NOT EXISTS results_by_config ON results (dataset_id, codec, params);
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
@@ -76,7 +81,11 @@ CREATE TABLE IF NOT EXISTS artifact_files (
 );
 """
 # Columns added after schema 1, with the values old rows get.
-_ADDED = {"plugin_version": "TEXT NOT NULL DEFAULT ''", "scoring": "TEXT NOT NULL DEFAULT '[]'"}
+_ADDED = {
+    "plugin_version": "TEXT NOT NULL DEFAULT ''",
+    "scoring": "TEXT NOT NULL DEFAULT '[]'",
+    "sensor_guessed": "INTEGER NOT NULL DEFAULT 0",
+}
 
 
 def canonical_json(obj: Any) -> str:
@@ -138,6 +147,10 @@ class ResultRow:
     created: str = ""
     plugin_version: str = ""
     scoring: list = field(default_factory=list)
+    # Whether the dataset's sensor model was a guess (derived without ring labels) when this row
+    # was scored: its range metrics stand on that guessed beam table. Not part of the key (the
+    # same data and code give the same guess).
+    sensor_guessed: bool = False
 
     @property
     def evaluation(self) -> str:
@@ -343,6 +356,7 @@ class ResultStore:
             "created": created,
             "plugin_version": row.plugin_version,
             "scoring": canonical_json(row.scoring),
+            "sensor_guessed": int(bool(row.sensor_guessed)),
         }
         kept = self._keep(row.evaluation, artifacts or {})
         with self.conn:
@@ -421,13 +435,14 @@ class ResultStore:
                 created=v["created"],
                 plugin_version=v["plugin_version"],
                 scoring=json.loads(v["scoring"]),
+                sensor_guessed=bool(v["sensor_guessed"]),
             )
 
     def count(self) -> int:
         return self.conn.execute("SELECT COUNT(*) FROM results").fetchone()[0]
 
 
-_DEFAULTS = {"plugin_version": "''", "scoring": "'[]'"}
+_DEFAULTS = {"plugin_version": "''", "scoring": "'[]'", "sensor_guessed": "0"}
 
 
 def _unpack_array(blob: bytes) -> np.ndarray:

@@ -42,7 +42,7 @@ class GeometryMetric(FrameMetric):
     ids = (
         MetricId("chamfer", "m", LOWER, default=True, role="distortion"),
         MetricId("hausdorff", "m", LOWER),
-        MetricId("d1_psnr", "dB", HIGHER, default=True, role="distortion"),
+        MetricId("d1_psnr", "dB", HIGHER, role="distortion"),  # behind --columns: chamfer says it
         MetricId("d2_psnr", "dB", HIGHER),
     )
     description = "Chamfer and Hausdorff distances (m); D1/D2 PSNR (dB) as MPEG pc_error, peak = max range"

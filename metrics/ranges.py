@@ -261,7 +261,7 @@ class RangeMetric(FrameMetric):
         # and its range RMSD -- over the paired returns only -- is kept off the RD curves.
         MetricId("coverage", "share", HIGHER, default=True, guard=Guard(
             "low_coverage", "low coverage", below=0.9, off_curves=("range_rmsd",), setting="min_coverage")),
-        MetricId("false_returns", "share", LOWER, default=True),
+        MetricId("false_returns", "share", LOWER),  # behind --columns (the board fits 120 columns)
     )
     description = (
         "original and decoded returns (each de-duplicated, placeholders nearer than the min range left out) "

@@ -42,8 +42,10 @@ def test_run_prints_every_core_metric_column(store):
     res = invoke("leaderboard", "--store", str(store), "--format", "md")
     assert res.exit_code == 0
     header = res.stdout.splitlines()[0]
-    for col in ("bytes", "ratio", "range_rmsd", "coverage", "chamfer", "d1_psnr", "encode_ms", "decode_ms"):
+    for col in ("bytes", "ratio", "range_rmsd", "coverage", "chamfer", "encode_ms", "decode_ms"):
         assert col in header
+    # Behind --columns (the default board fits 120 columns): select_ms is part of encode_ms.
+    assert not {"d1_psnr", "false_returns", "select_ms"} & set(header.replace("|", " ").split())
 
 
 def test_leaderboard_json_contract(store):
@@ -137,8 +139,8 @@ def test_columns_are_honoured_in_every_format(store):
 def test_the_run_prints_what_it_asked_for_not_the_whole_store(store, kitti_folder):
     res = invoke("run", "--dataset", str(kitti_folder), "--codec", "raw", "--frames", "1", "--store", str(store))
     assert res.exit_code == 0
-    raw = next(line for line in res.stdout.splitlines() if line.startswith("│ raw"))
-    assert raw.split("│")[2].strip() == "1"  # frames: the one frame this run asked for
+    raw = next(line for line in res.stdout.splitlines() if line.split()[:1] == ["raw"])
+    assert raw.split()[1] == "1"  # frames: the one frame this run asked for
     # The whole store's board pools all three frames of raw, and says that random saw others.
     board = json.loads(invoke("leaderboard", "--store", str(store), "--format", "json").stdout)
     assert {d["codec"]: d["frames"] for d in board}["raw"] == 3
@@ -172,8 +174,8 @@ def test_a_narrow_terminal_leaves_columns_out_instead_of_folding_numbers(store, 
     assert "not shown (terminal too narrow)" in out
     assert all(len(line) <= 90 for line in out.splitlines())
     # No number is split across lines: every cell of the bytes column reads as one number.
-    rows = [line for line in out.splitlines() if line.startswith("│")]
-    assert rows and all(r.split("│")[4].strip().replace(",", "").isdigit() for r in rows)
+    rows = [line for line in out.splitlines() if line.split()[:1] in (["raw"], ["random(ratio=0.1)"])]
+    assert len(rows) == 2 and all(r.split()[2].replace(",", "").isdigit() for r in rows)
 
 
 def test_version():

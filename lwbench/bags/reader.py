@@ -134,6 +134,7 @@ class BagDataset(Dataset):
         if not self.path.exists():
             raise DataFormatError(f"rosbag: {self.path} does not exist")
         self._cursor: tuple[Any, Iterator, int] | None = None  # (reader, messages, next index)
+        self._derivation: Any = None  # the lwbench.derive.Derivation, when the sensor was derived
         reader = open_reader(self.path)
         try:
             self.topic, conns = self._pick_topic(reader)
@@ -301,6 +302,7 @@ class BagDataset(Dataset):
                 )
             d = derive_sensor(scan.points, ring=scan.ring, rate_hz=self.rate_hz, name="derived")
             self._sensor_source = f"derived from the first cloud ({d.method})"
+            self._derivation = d
             return d.sensor
         if value.lower() in SENSOR_PRESETS:
             self._sensor_source = f"preset {value.lower()}"
@@ -312,6 +314,13 @@ class BagDataset(Dataset):
         raise ParameterError(
             f"sensor={value!r}: neither a preset ({', '.join(sorted(SENSOR_PRESETS))}), auto, nor a sensor.json file"
         )
+
+    @property
+    def sensor_guessed(self) -> bool:
+        """Whether the sensor model was guessed from the first cloud (no sensor table, no
+        sensor.json, no ring field or ring order): the rows scored on it say so."""
+        _ = self.sensor
+        return self._derivation is not None and self._derivation.guessed
 
     def _scan(self, index: int) -> ScanArrays:
         """Cloud ``index``, read on from the open pass (or from a new one when going back)."""
@@ -372,7 +381,8 @@ class BagDataset(Dataset):
 
     def source_info(self) -> dict[str, Any]:
         return {"layout": f"ROS bag, topic {self.topic}", "poses from": self.pose_source or "none",
-                "world frame": self.world or "none", "sensor source": self.sensor_source}
+                "world frame": self.world or "none", "sensor source": self.sensor_source,
+                "sensor guessed": self.sensor_guessed}
 
     @classmethod
     def sniff(cls, path: Path) -> bool:

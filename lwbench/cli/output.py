@@ -66,40 +66,18 @@ def wanted_columns(columns: str | None, available) -> tuple[str, ...] | None:
 
 
 def print_board(entries, sort: str, wanted: tuple[str, ...] | None, info) -> None:
-    """The board in the terminal: never folds a number -- columns that do not fit are left out
-    (and named), so read a wide board with --columns or --format md."""
-    from rich.table import Table
+    """The board in the terminal (:mod:`lwbench.board_table`): never folds a number -- columns
+    that do not fit are left out (and named), so read a wide board with --columns or --format md."""
+    from lwbench.board_table import board_columns, board_table, flag_notes
 
-    from lwbench.leaderboard import present_columns, table_rows
-
-    if wanted is None:
-        cols = present_columns(entries, tuple(info_id for info_id, i in info.items() if i.default))
-        if sort not in cols and any(e.value(sort) is not None for e in entries):
-            cols = (sort, *cols)
-    else:
-        cols = wanted
-    header, rows = table_rows(entries, cols, info)
-    width = console.width or 200
-    fixed = header.index("fail") + 1
-    # What rich needs per column: the widest cell, one space of padding each side, one border.
-    widths = [max(len(h), *(len(r[i]) for r in rows)) + 3 if rows else len(h) + 3 for i, h in enumerate(header)]
-    dropped: list[str] = []
-    keep = list(range(len(header)))
-    flags_col = [len(header) - 1] if header[-1] == "flags" else []
-    while sum(widths[i] for i in keep) + 1 > width and len(keep) > fixed + 1 + len(flags_col):
-        victim = [i for i in keep if i >= fixed and i not in flags_col][-1]
-        keep.remove(victim)
-        dropped.append(header[victim])
-    table = Table(title=f"Leaderboard (mean over frames; sorted by {escape(sort)})", title_justify="left")
-    for i in keep:
-        numeric = i >= fixed and i not in flags_col
-        table.add_column(escape(header[i]), justify="right" if numeric else "left", no_wrap=numeric)
-    for r in rows:
-        table.add_row(*(escape(r[i]) for i in keep))
+    table, dropped = board_table(entries, board_columns(entries, sort, info, wanted), info, sort=sort,
+                                 width=console.width or 200)
     console.print(table)
     if dropped:
-        names = escape(", ".join(reversed(dropped)))
+        names = escape(", ".join(dropped))
         console.print(f"[dim]not shown (terminal too narrow): {names}; use --columns or --format md[/]")
+    for note in flag_notes(entries):
+        console.print(f"[dim]{escape(note)}[/]")
     for e in entries:
         for err in e.errors:
             err_console.print(f"[red]{escape(e.label)}[/]: {escape(err)}", highlight=False)

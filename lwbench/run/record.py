@@ -55,6 +55,8 @@ class RowFactory:
     seed: int
     scoring: list
     provenance: Provenance
+    # The dataset's sensor model is a guess (``Dataset.sensor_guessed``): every row says so.
+    sensor_guessed: bool = False
     _defaults: dict[str, dict] = field(default_factory=dict)
 
     def _common(self, config: CodecConfig) -> dict[str, Any]:
@@ -71,6 +73,7 @@ class RowFactory:
             "versions": {**self.provenance.versions, "plugin": self.registry.providers.get(("codec", config.name))},
             "machine": self.provenance.machine,
             "plugin_version": self.registry.plugin_version("codec", config.name),
+            "sensor_guessed": self.sensor_guessed,
         }
 
     def frame_row(self, frame: int, config: CodecConfig, result: FrameResult | None = None) -> ResultRow:

@@ -93,7 +93,8 @@ class Runner:
         self.worker = Worker(self.registry, plan.metric_params, {plan.dataset.label: self.dataset})
         self.evaluator: Evaluator = self.worker.evaluator
         self.rows = RowFactory(
-            self.registry, plan.dataset.label, self.dataset_id, plan.seed, self.evaluator.scoring, Provenance.current()
+            self.registry, plan.dataset.label, self.dataset_id, plan.seed, self.evaluator.scoring, Provenance.current(),
+            sensor_guessed=bool(self.dataset.sensor_guessed),
         )
         self.sequence: SequenceStage | None = None
         if plan.sequence_metrics and self.dataset.has_poses:
