@@ -33,6 +33,7 @@ __all__ = [
     "MAX_COORDINATE",
     "RANGE_MARGIN",
     "check_count",
+    "check_encodable",
     "coordinate_bound",
     "check_work",
     "checked_cloud",
@@ -166,6 +167,27 @@ def checked_cloud(
         if bounds is not None:
             _check_box(pts, codec, bounds)
     return pts
+
+
+def check_encodable(points: object, codec: str, *, max_range: float | None = None, slack: float = 0.0) -> None:
+    """The encoder's side of :func:`checked_cloud`: ``ValueError`` when a scan holds points its
+    decoder would refuse -- farther from the sensor than ``max_range`` plus the margin (than
+    :data:`MAX_COORDINATE` without one). A codec calls it before writing, so that it never writes
+    a payload its own decoder refuses (a 20 km point in a float32 body decodes to a
+    ``PayloadError``: the encode fails instead, saying why). ``slack`` (m) is how far the
+    codec's rounding may move a point outward (a quantization step), taken off the bound."""
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if not len(pts):
+        return
+    limit = coordinate_bound(max_range) - max(0.0, float(slack))
+    far = np.linalg.norm(pts, axis=1) > limit
+    if far.any():
+        why = "no LiDAR return is that far" if max_range is None else f"its sensor sees to {max_range:g} m"
+        raise ValueError(
+            f"{codec}: the scan holds {int(far.sum())} of {len(pts)} points farther than {limit:g} m from the "
+            f"sensor ({why}, up to {np.linalg.norm(pts[far], axis=1).max():.3g} m); its decoder would refuse "
+            "the payload: drop or crop them first"
+        )
 
 
 def _check_reach(pts: np.ndarray, codec: str, max_range: float | None) -> None:

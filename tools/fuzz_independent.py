@@ -92,7 +92,9 @@ class Container:
     def seal(self, *, id_len: int | None = None, meta_len: int | None = None, body_len: int | None = None) -> bytes:
         """The container's bytes with a valid CRC (length fields overridable: lies about lengths)."""
         out = bytearray(MAGIC)
-        out += bytes([self.version & 0xFF, self.flags & 0xFF, (len(self.codec_id) if id_len is None else id_len) & 0xFF])
+        out += bytes(
+            [self.version & 0xFF, self.flags & 0xFF, (len(self.codec_id) if id_len is None else id_len) & 0xFF]
+        )
         out += self.codec_id
         out += struct.pack("<H", (len(self.meta) if meta_len is None else meta_len) & 0xFFFF) + self.meta
         out += self.pose
@@ -106,8 +108,30 @@ def reseal(raw: bytes) -> bytes:
 
 
 # -- the mutator -----------------------------------------------------------------------------------
-HOSTILE_JSON = [0, -1, 1, 2**31, 2**32 - 1, 2**63 - 1, -(2**63), 1e30, -1e30, 1e-300, 0.5, 255, 65536, "", "x" * 300,
-                [], {}, None, True, False, [1e30, 1e30, 1e30], {"preset": "vlp16"}]
+HOSTILE_JSON = [
+    0,
+    -1,
+    1,
+    2**31,
+    2**32 - 1,
+    2**63 - 1,
+    -(2**63),
+    1e30,
+    -1e30,
+    1e-300,
+    0.5,
+    255,
+    65536,
+    "",
+    "x" * 300,
+    [],
+    {},
+    None,
+    True,
+    False,
+    [1e30, 1e30, 1e30],
+    {"preset": "vlp16"},
+]
 HOSTILE_SENSORS = [
     {"beams": 256, "elevations": [-90.0 + 0.7 * i for i in range(256)], "azimuth_step": 0.01, "max_range": 10_000.0},
     {"beams": 2, "elevations": [90.0, -90.0], "azimuth_step": 0.01, "max_range": 1e30},
@@ -118,10 +142,32 @@ HOSTILE_SENSORS = [
     {"beams": 4, "elevations": [0, 0, 0, 0], "azimuth_step": 1e-9, "max_range": 50.0},
 ]
 U_VALUES = [0, 1, 2, 3, 0x7F, 0xFF, 0x100, 0xFFFF, 0x10000, 1 << 24, (1 << 31) - 1, 1 << 31, (1 << 32) - 1]
-F_VALUES = [0.0, -0.0, 1e-30, -1e-30, 1.0, -1.0, 1e6, 1e30, -1e30, 3.4e38, -3.4e38, float("nan"), float("inf"),
-            float("-inf"), 65504.0]
-FIELDS = {"u8": ("<B", 1), "u16": ("<H", 2), "u32": ("<I", 4), "u64": ("<Q", 8), "f16": ("<e", 2), "f32": ("<f", 4),
-          "f64": ("<d", 8)}
+F_VALUES = [
+    0.0,
+    -0.0,
+    1e-30,
+    -1e-30,
+    1.0,
+    -1.0,
+    1e6,
+    1e30,
+    -1e30,
+    3.4e38,
+    -3.4e38,
+    float("nan"),
+    float("inf"),
+    float("-inf"),
+    65504.0,
+]
+FIELDS = {
+    "u8": ("<B", 1),
+    "u16": ("<H", 2),
+    "u32": ("<I", 4),
+    "u64": ("<Q", 8),
+    "f16": ("<e", 2),
+    "f32": ("<f", 4),
+    "f64": ("<d", 8),
+}
 
 
 def _leaves(obj, path=()):
@@ -171,11 +217,15 @@ def mutate_meta(c: Container, rng: random.Random) -> Container:
     elif op == 1 and meta:  # a key dropped
         meta.pop(rng.choice(list(meta)))
     elif op == 2:  # a key added
-        meta[rng.choice(["n", "count", "bits", "sensor", "grid", "extra", "shape", "bounds"])] = rng.choice(HOSTILE_JSON)
+        meta[rng.choice(["n", "count", "bits", "sensor", "grid", "extra", "shape", "bounds"])] = rng.choice(
+            HOSTILE_JSON
+        )
     elif op == 3:  # a hostile sensor
         meta["sensor"] = dict(rng.choice(HOSTILE_SENSORS))
     else:  # a number scaled
-        numeric = [p for p in paths[1:] if isinstance(_get(meta, p), (int, float)) and not isinstance(_get(meta, p), bool)]
+        numeric = [
+            p for p in paths[1:] if isinstance(_get(meta, p), (int, float)) and not isinstance(_get(meta, p), bool)
+        ]
         if numeric:
             p = rng.choice(numeric)
             v = _get(meta, p)
@@ -219,8 +269,11 @@ def mutate_body(c: Container, rng: random.Random, bodies: list[bytes]) -> Contai
     elif op == 6:  # truncated
         body = body[: rng.randrange(len(body) + 1)]
     elif op == 7:  # extended
-        body += rng.choice([b"\0", b"\xff"]) * rng.choice([1, 3, 4, 12, 4096]) if rng.random() < 0.5 else os.urandom(
-            rng.randint(1, 64))
+        body += (
+            rng.choice([b"\0", b"\xff"]) * rng.choice([1, 3, 4, 12, 4096])
+            if rng.random() < 0.5
+            else os.urandom(rng.randint(1, 64))
+        )
     else:  # a splice with another seed's body (same codec)
         other = rng.choice(bodies)
         cut_a, cut_b = rng.randrange(len(body) + 1), rng.randrange(len(other) + 1)
@@ -302,8 +355,13 @@ def _child(conn, parent: int, ceiling_mb: int, sensors: list[dict]) -> None:
 
 
 def _judge(out, data, seed_range, catalog, Payload, SensorModel) -> tuple[str, str]:  # noqa: N803
-    if not (isinstance(out, np.ndarray) and out.ndim == 2 and out.shape[1] == 3 and out.dtype == np.float32
-            and np.isfinite(out).all()):
+    if not (
+        isinstance(out, np.ndarray)
+        and out.ndim == 2
+        and out.shape[1] == 3
+        and out.dtype == np.float32
+        and np.isfinite(out).all()
+    ):
         return "bad output", f"{type(out).__name__} {getattr(out, 'shape', '')} {getattr(out, 'dtype', '')}"
     if not len(out):
         return "ok", ""
@@ -444,14 +502,17 @@ def main() -> None:
                     tally.add(*decoder.decode(name, params, case, seed_range), case)
             tallies.append(tally)
             worst = ", ".join(f"{k} {v}" for k, v in sorted(tally.kinds.items()) if k not in ("ok", "PayloadError"))
-            print(f"{name}: {tally.cases} cases, {len(seeds)} seeds, {tally.kinds['ok']} decoded, "
-                  f"{tally.kinds['PayloadError']} PayloadError, absurd {tally.kinds['absurd']}, escapes "
-                  f"{tally.escapes}, over 1 s {tally.over_cpu} ({worst or 'none'}); max {tally.max_cpu:.2f} s CPU, "
-                  f"{time.perf_counter() - t0:.0f} s", flush=True)
+            print(
+                f"{name}: {tally.cases} cases, {len(seeds)} seeds, {tally.kinds['ok']} decoded, "
+                f"{tally.kinds['PayloadError']} PayloadError, absurd {tally.kinds['absurd']}, escapes "
+                f"{tally.escapes}, over 1 s {tally.over_cpu} ({worst or 'none'}); max {tally.max_cpu:.2f} s CPU, "
+                f"{time.perf_counter() - t0:.0f} s",
+                flush=True,
+            )
             for folder in (args.out, args.corpus):
                 if folder and tally.failures:
                     folder.mkdir(parents=True, exist_ok=True)
-                    for i, (verdict, message, case) in enumerate(tally.failures[:40]):
+                    for i, (verdict, _, case) in enumerate(tally.failures[:40]):
                         (folder / f"{name}-{i}-{verdict}.lwb").write_bytes(case)
             for verdict, message, _ in tally.failures[:6]:
                 print(f"    {verdict}: {message}", flush=True)
@@ -460,8 +521,10 @@ def main() -> None:
     print("\n| codec | cases | decoded | PayloadError | non-PayloadError | absurd | over 1 s CPU | max CPU s |")
     print("|---|---|---|---|---|---|---|---|")
     for t in tallies:
-        print(f"| {t.codec} | {t.cases} | {t.kinds['ok']} | {t.kinds['PayloadError']} | {t.escapes} | "
-              f"{t.kinds['absurd']} | {t.over_cpu} | {t.max_cpu:.2f} |")
+        print(
+            f"| {t.codec} | {t.cases} | {t.kinds['ok']} | {t.kinds['PayloadError']} | {t.escapes} | "
+            f"{t.kinds['absurd']} | {t.over_cpu} | {t.max_cpu:.2f} |"
+        )
     sys.exit(0)
 
 

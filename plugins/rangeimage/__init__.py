@@ -60,6 +60,7 @@ from lwbench import (
     RepresentationCodec,
     SensorModel,
     check_count,
+    check_encodable,
     checked_cloud,
     hookimpl,
 )
@@ -166,6 +167,9 @@ class RangeImageCodec(RepresentationCodec):
         return sensor, layers, width
 
     def encode(self, frame: Frame) -> bytes:
+        # Every return is kept (on the grid or verbatim): one beyond the decoder's reach would make
+        # the payload undecodable, so the encode is refused instead (a range rounds by step / 2).
+        check_encodable(frame.points, self.name, slack=self.config["step"] if self.config["mode"] == "quantized" else 0)
         sensor, layers, width = self.layers(frame)
         q = self._offset_step(layers.grid)
         _check_returns(layers)
