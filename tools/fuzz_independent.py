@@ -11,8 +11,11 @@ as a structure and re-seals the CRC:
   the container truncated or extended;
 - **metadata**: the JSON parsed, one leaf (found by walking the tree) replaced by a hostile value
   (0, -1, 2^31, 2^63-1, 1e30, -1e30, 1e-300, "", [], {}, null, true, a long string), a key
-  dropped or added, a sensor description replaced by a hostile one (256 beams, 0.01 deg steps,
-  10 km and 1e30 m ranges, elevations of +-90, min range above max);
+  dropped or added, a number nudged (+-1, x2, /2, negated), a sensor description replaced by a
+  hostile one (256 beams, 0.01 deg steps, 10 km and 1e30 m ranges, elevations of +-90, min
+  range above max);
+- **compressed sections**: a zstd frame found in the body inflated, its content mutated the
+  same ways and compressed again (the codec's own sections, past the decompressor's checks);
 - **body**: typed fields (u8/u16/u32/u64/f16/f32/f64) at an offset in the first 64 bytes or
   anywhere set to boundary values (0, 1, 2^8/16/24/31/32-1, 3.4e38, 1e30, NaN, inf, 1e-30),
   a run of float32 coordinates scaled by 1e6..1e30, bit flips, byte runs, truncation, extension,
@@ -55,7 +58,7 @@ CEILING_MB = 2048
 MAX_COORDINATE_M = 10_000.0  # no LiDAR return is 10 km away (this tool's own constant)
 MARGIN = 0.5  # a decoded point may lie this share past its sensor's max range
 FAST = {"gmm": {"n_components": 8, "max_iter": 20, "fit_points": 4000}, "vsgp": {"num_inducing": 100}}
-SEEDS_PER_CODEC = 8
+SEEDS_PER_CODEC = 16
 
 
 # -- the container, parsed independently -----------------------------------------------------------
@@ -209,7 +212,7 @@ def mutate_meta(c: Container, rng: random.Random) -> Container:
         meta = {}
     if not isinstance(meta, dict):
         meta = {}
-    op = rng.randrange(5)
+    op = rng.randrange(6)
     paths = list(_leaves(meta))
     if op == 0 and len(paths) > 1:  # one value replaced
         path = rng.choice(paths[1:])
@@ -222,6 +225,13 @@ def mutate_meta(c: Container, rng: random.Random) -> Container:
         )
     elif op == 3:  # a hostile sensor
         meta["sensor"] = dict(rng.choice(HOSTILE_SENSORS))
+    elif op == 4:  # a number nudged: small lies survive the sanity checks and reach deeper code
+        numeric = [p for p in paths[1:] if _is_number(_get(meta, p))]
+        if numeric:
+            p = rng.choice(numeric)
+            v = _get(meta, p)
+            nudged = rng.choice([v + 1, v - 1, v * 2, v // 2 if isinstance(v, int) else v / 2, -v])
+            meta = _set(meta, p, nudged)
     else:  # a number scaled
         numeric = [
             p for p in paths[1:] if isinstance(_get(meta, p), (int, float)) and not isinstance(_get(meta, p), bool)
@@ -236,15 +246,63 @@ def mutate_meta(c: Container, rng: random.Random) -> Container:
     return c
 
 
+def _is_number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
 def _get(obj, path):
     for key in path:
         obj = obj[key]
     return obj
 
 
+ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"
+
+
+def mutate_inside_zstd(body: bytes, rng: random.Random) -> bytes | None:
+    """A zstd frame inside the body inflated, its content mutated (typed field, bit flips, a
+    truncation or an extension) and compressed again: the codec's own sections, past the
+    decompressor's checks. ``None`` when the body holds no frame that inflates."""
+    import zstandard
+
+    starts = [i for i in range(len(body)) if body.startswith(ZSTD_MAGIC, i)][:8]
+    if not starts:
+        return None
+    off = rng.choice(starts)
+    try:
+        dobj = zstandard.ZstdDecompressor().decompressobj()
+        inner = bytearray(dobj.decompress(body[off:]))
+        rest = dobj.unused_data
+    except zstandard.ZstdError:
+        return None
+    if len(inner) > 1 << 26:
+        return None
+    op = rng.randrange(4)
+    if op == 0 and inner:
+        kind = rng.choice(list(FIELDS))
+        size = FIELDS[kind][1]
+        at = rng.randrange(max(1, len(inner) - size + 1))
+        inner[at : at + size] = _field_value(rng, kind)
+    elif op == 1 and inner:
+        for _ in range(rng.randint(1, 16)):
+            i = rng.randrange(len(inner))
+            inner[i] ^= 1 << rng.randrange(8)
+    elif op == 2:
+        inner = inner[: rng.randrange(len(inner) + 1)]
+    else:
+        inner += bytes(rng.choice([1, 4, 12, 1000]))
+    return body[:off] + zstandard.ZstdCompressor(level=1).compress(bytes(inner)) + rest
+
+
 def mutate_body(c: Container, rng: random.Random, bodies: list[bytes]) -> Container:
     body = bytearray(c.body)
-    op = rng.randrange(9)
+    op = rng.randrange(11)
+    if op >= 9:  # inside a compressed section
+        inner = mutate_inside_zstd(bytes(body), rng)
+        if inner is not None:
+            c.body = inner
+            return c
+        op = rng.randrange(9)
     if op <= 2 and body:  # a typed field at a header-ish offset (op 0, 1) or anywhere (op 2)
         kind = rng.choice(list(FIELDS))
         size = FIELDS[kind][1]
@@ -435,17 +493,34 @@ def seed_frames():
     return out
 
 
-def seeds_for(name: str, cls, frames) -> list[tuple[dict, bytes, float | None]]:
-    params = FAST.get(name, {})
-    out = []
-    for _, frame in frames:
-        try:
-            data = cls(**params).encode(frame)
-        except Exception:  # noqa: BLE001, S112 - a scan this codec refuses
+def variants(cls, base: dict) -> list[dict]:
+    """The base parameters and each declared choice / flag changed one at a time (every body
+    layout a codec can write: rangeimage's image bodies, the serializer's quantized points ...)."""
+    out = [dict(base)]
+    for p in cls.all_params():
+        if p.name in base or p.name == "device":
             continue
-        names_sensor = b'"sensor"' in Container.parse(data).meta
-        out.append((params, data, float(frame.sensor.max_range) if names_sensor else None))
-    return out[:SEEDS_PER_CODEC]
+        values = [c for c in (p.choices or ()) if c != p.default] or ([not p.default] if p.type == "bool" else [])
+        out += [{**base, p.name: v} for v in values]
+    return out
+
+
+def seeds_for(name: str, cls, frames) -> tuple[list[tuple[dict, bytes, float | None]], list]:
+    """Up to SEEDS_PER_CODEC valid payloads ``(params, bytes, the scan's max range when the
+    payload names its sensor)``, and the sensors the encoders named (the decoder must know them)."""
+    out, sensors = [], []
+    for params in variants(cls, FAST.get(name, {})):
+        for _, frame in frames:
+            encoder = cls(**params)
+            try:
+                data = encoder.encode(frame)
+            except Exception:  # noqa: BLE001, S112 - a scan this codec refuses
+                continue
+            sensors += [frame.sensor, *encoder.sensors]
+            names_sensor = b'"sensor"' in Container.parse(data).meta
+            out.append((params, data, float(frame.sensor.max_range) if names_sensor else None))
+    random.Random(name).shuffle(out)
+    return out[:SEEDS_PER_CODEC], sensors
 
 
 @dataclass
@@ -484,20 +559,24 @@ def main() -> None:
     reg = get_registry()
     names = args.codecs or sorted(n for n, c in reg.codecs.items() if not c.needs)
     frames = seed_frames()
-    sensors = [s.to_dict(full=True) for s in {f.sensor.sensor_id: f.sensor for _, f in frames}.values()]
-    decoder = Decoder(sensors)
+    seeds, known = {}, {}
+    for name in names:
+        seeds[name], named = seeds_for(name, reg.codec(name), frames)
+        known.update({s.sensor_id: s for s in named})
+    decoder = Decoder([s.to_dict(full=True) for s in known.values()])
     tallies = []
     try:
         for name in names:
             t0 = time.perf_counter()
-            seeds = seeds_for(name, reg.codec(name), frames)
             tally = Tally(name)
-            if seeds:
-                decoder.warm(name, seeds[0][0], seeds[0][1])
+            own = seeds[name]
+            if own:
+                for params, data, _ in own:  # imports and first calls of every variant, unmeasured
+                    decoder.warm(name, params, data)
                 rng = random.Random(f"{args.seed}:{name}")
-                bodies = [Container.parse(d).body for _, d, _ in seeds]
+                bodies = [Container.parse(d).body for _, d, _ in own]
                 for i in range(args.cases):
-                    params, data, seed_range = seeds[i % len(seeds)]
+                    params, data, seed_range = own[i % len(own)]
                     case = mutate(data, rng, bodies)
                     tally.add(*decoder.decode(name, params, case, seed_range), case)
             tallies.append(tally)

@@ -52,6 +52,7 @@ from lwbench_plugins.rangeimage.layers import (
 from lwbench_plugins.rangeimage.transform import PREDICTORS, pack_image, unpack_image
 
 from lwbench import (
+    MAX_COORDINATE,
     SENSOR_PRESETS,
     Frame,
     Param,
@@ -62,6 +63,7 @@ from lwbench import (
     check_count,
     check_encodable,
     checked_cloud,
+    coordinate_bound,
     hookimpl,
 )
 from lwbench.geometry import spherical
@@ -88,7 +90,9 @@ class RangeImageCodec(RepresentationCodec):
 
     name = "rangeimage"
     in_default_run = True
-    version = "4"  # 4: every return (overflow, exceptions, offsets), the grid from the data, body=
+    # 5: returns held to the payload's sensor's reach (the encoder widens its max range to cover
+    # the scan's farthest return, and refuses one beyond 10 km)
+    version = "5"  # 4: every return (overflow, exceptions, offsets), the grid from the data, body=
     description = "beam x azimuth range image of every return: grid from the scan, offsets, row-delta + LZMA2"
     params = (
         Param("mode", "str", "quantized", "quantized (error <= step/2) or lossless (exact float32 ranges)",
@@ -167,10 +171,16 @@ class RangeImageCodec(RepresentationCodec):
         return sensor, layers, width
 
     def encode(self, frame: Frame) -> bytes:
-        # Every return is kept (on the grid or verbatim): one beyond the decoder's reach would make
-        # the payload undecodable, so the encode is refused instead (a range rounds by step / 2).
-        check_encodable(frame.points, self.name, slack=self.config["step"] if self.config["mode"] == "quantized" else 0)
+        # Every return is kept (on the grid or verbatim), and the decoder holds its returns to the
+        # payload's sensor's reach (max range + 50 %): a return beyond 10 km is refused here; one
+        # beyond the sensor's reach (a later frame past the first's max range) widens the sensor
+        # the payload names to cover it, so that the decoder accepts what was written.
+        slack = self.config["step"] if self.config["mode"] == "quantized" else 0.0
+        check_encodable(frame.points, self.name, slack=slack)
         sensor, layers, width = self.layers(frame)
+        farthest = float(np.linalg.norm(frame.points.astype(np.float64), axis=1).max(initial=0.0)) + slack
+        if farthest > coordinate_bound(sensor.max_range):
+            sensor = sensor.with_max_range(min(MAX_COORDINATE, farthest))  # MAX_COORDINATE: every sensor's ceiling
         q = self._offset_step(layers.grid)
         _check_returns(layers)
         body, predict = self.config["body"], self.config["predict"]
@@ -213,7 +223,7 @@ class RangeImageCodec(RepresentationCodec):
         layers, q, ranges = self._decode(data)
         dirs, _ = directions(layers, q)
         points = np.concatenate([dirs * ranges[:, None], layers.exceptions.astype(np.float64)])
-        return checked_cloud(points, self.name)
+        return checked_cloud(points, self.name, max_range=layers.grid.sensor.max_range)
 
     def decode_image(self, data: bytes) -> tuple[SensorModel, np.ndarray]:
         """The grid (as a sensor model) and its layer-0 range image (float32, 0 = no return)."""
