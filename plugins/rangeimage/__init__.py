@@ -79,10 +79,13 @@ _REFINE = ("beam", "none")
 #: original's -- below float32's resolution of a direction (6e-8 relative).
 LOSSLESS_DIRECTION_RAD = 2.0**-24
 #: A payload holds at most this many returns per grid cell on average, and at most
-#: :data:`MAX_RETURNS` in all (16x an OS1-128 at 2,048 columns): what one sweep of a real sensor
+#: :data:`MAX_RETURNS` in all (8x an OS1-128 at 2,048 columns): what one sweep of a real sensor
 #: has, with room. The encoder refuses a scan beyond either (an accumulated map is not a sweep).
+#: 2**21, not 2**22: a header asking for 4 Mi returns on a 4 Mi-cell grid took 0.56-1.17 s of
+#: CPU to decode (zstd / png / jpegxl / zfp bodies, load 4.5-4.9); 2 Mi returns on that grid take
+#: 0.29-0.42 s -- within the second of CPU a decode may take (docs/hostile.md).
 RETURNS_PER_CELL = 2
-MAX_RETURNS = 1 << 22
+MAX_RETURNS = 1 << 21
 
 
 class RangeImageCodec(RepresentationCodec):
