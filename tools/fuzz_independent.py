@@ -479,12 +479,14 @@ class Decoder:
 
 # -- seeds and the campaign ------------------------------------------------------------------------
 def seed_frames():
-    """The kit's scans, subsampled (cases stay small and decodes quick), and two tiny scans."""
+    """The kit's scans (its check frames, a tunnel, half a cylinder), subsampled (cases stay small
+    and decodes quick), and two tiny scans."""
     from lwbench import Frame
-    from lwbench.testing import check_frames
+    from lwbench.testing import check_frames, cylinder_scan, tunnel_scan
 
     out = []
-    for i, (label, frame) in enumerate(sorted(check_frames().items())):
+    scans = {**check_frames(), "tunnel": tunnel_scan(seed=3), "cylinder": cylinder_scan(half=True)}
+    for i, (label, frame) in enumerate(sorted(scans.items())):
         step = max(1, len(frame) // 3000)
         out.append((label, frame.subset(np.arange(i % step, len(frame), step))))
     base = out[0][1]
@@ -582,7 +584,7 @@ def main() -> None:
             tallies.append(tally)
             worst = ", ".join(f"{k} {v}" for k, v in sorted(tally.kinds.items()) if k not in ("ok", "PayloadError"))
             print(
-                f"{name}: {tally.cases} cases, {len(seeds)} seeds, {tally.kinds['ok']} decoded, "
+                f"{name}: {tally.cases} cases, {len(own)} seeds, {tally.kinds['ok']} decoded, "
                 f"{tally.kinds['PayloadError']} PayloadError, absurd {tally.kinds['absurd']}, escapes "
                 f"{tally.escapes}, over 1 s {tally.over_cpu} ({worst or 'none'}); max {tally.max_cpu:.2f} s CPU, "
                 f"{time.perf_counter() - t0:.0f} s",
