@@ -279,7 +279,8 @@ class GMMCodec(RepresentationCodec):
         check_work(decode_work(n, k_occ, k_free), "drawing (and free-space filtering)", codec="gmm",
                    limit=_MAX_DECODE_WORK)
         rows = np.frombuffer(body, dtype=dt, offset=_HEAD.size).reshape(-1, _FLOATS_PER_COMPONENT)
-        rows = rows.astype(np.float64)
+        with np.errstate(invalid="ignore", over="ignore"):  # NaN/inf patterns are refused by _unpack
+            rows = rows.astype(np.float64)
         free = _unpack(rows[k_occ:]) if k_free else None
         return _unpack(rows[:k_occ]), free, n
 
