@@ -32,16 +32,7 @@ from typing import Any
 import numpy as np
 from lwbench_plugins.cloudini.v5 import MAX_VARINT_BYTES, read_body, write_body
 
-from lwbench import (
-    Frame,
-    Param,
-    PayloadError,
-    RepresentationCodec,
-    check_count,
-    check_encodable,
-    checked_cloud,
-    hookimpl,
-)
+from lwbench import Frame, Param, PayloadError, RepresentationCodec, check_count, check_encodable, checked_cloud, hookimpl
 
 __all__ = ["CloudiniCodec", "MIN_BITS_PER_POINT", "MAX_STAGE1_BYTES", "read_cloudini"]
 

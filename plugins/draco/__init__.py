@@ -30,16 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from lwbench import (
-    Frame,
-    Param,
-    PayloadError,
-    RepresentationCodec,
-    check_count,
-    check_encodable,
-    checked_cloud,
-    hookimpl,
-)
+from lwbench import Frame, Param, PayloadError, RepresentationCodec, check_count, check_encodable, checked_cloud, hookimpl
 
 __all__ = ["DracoCodec", "distinct_points", "quantization_step"]
 

@@ -35,16 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from lwbench import (
-    Frame,
-    Param,
-    PayloadError,
-    RepresentationCodec,
-    check_count,
-    check_encodable,
-    checked_cloud,
-    hookimpl,
-)
+from lwbench import Frame, Param, PayloadError, RepresentationCodec, check_count, check_encodable, checked_cloud, hookimpl
 
 __all__ = ["LazCodec", "check_las", "read_laz", "MIN_BITS_PER_POINT"]
 
