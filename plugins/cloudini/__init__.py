@@ -32,7 +32,8 @@ from typing import Any
 import numpy as np
 from lwbench_plugins.cloudini.v5 import MAX_VARINT_BYTES, read_body, write_body
 
-from lwbench import Frame, Param, PayloadError, RepresentationCodec, check_count, check_encodable, checked_cloud, hookimpl
+import lwbench
+from lwbench import Frame, Param, PayloadError, RepresentationCodec, check_count, checked_cloud, hookimpl
 
 __all__ = ["CloudiniCodec", "MIN_BITS_PER_POINT", "MAX_STAGE1_BYTES", "read_cloudini"]
 
@@ -66,7 +67,7 @@ class CloudiniCodec(RepresentationCodec):
 
     def encode(self, frame: Frame) -> bytes:
         resolution = float(self.config["resolution"])
-        check_encodable(frame.points, self.name, slack=np.sqrt(3.0) * resolution)  # what the decoder accepts
+        lwbench.check_encodable(frame.points, self.name, slack=np.sqrt(3.0) * resolution)  # what the decoder accepts
         columns = [np.asarray(frame.points, dtype=np.float32)]
         fields = _FIELDS[0]
         if self.config["intensity"] and frame.intensity is not None:

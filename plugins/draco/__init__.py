@@ -30,7 +30,8 @@ from typing import Any
 
 import numpy as np
 
-from lwbench import Frame, Param, PayloadError, RepresentationCodec, check_count, check_encodable, checked_cloud, hookimpl
+import lwbench
+from lwbench import Frame, Param, PayloadError, RepresentationCodec, check_count, checked_cloud, hookimpl
 
 __all__ = ["DracoCodec", "distinct_points", "quantization_step"]
 
@@ -119,7 +120,7 @@ class DracoCodec(RepresentationCodec):
             origin = ((lo + hi) / 2 - qrange / 2).tolist()
             kwargs = {"quantization_range": qrange, "quantization_origin": origin}
         # Never write what the decoder refuses: every decoded point within reach, rounding included.
-        check_encodable(pts, self.name, slack=np.sqrt(3.0) * quantization_step(pts, bits, qrange))
+        lwbench.check_encodable(pts, self.name, slack=np.sqrt(3.0) * quantization_step(pts, bits, qrange))
         body = DracoPy.encode(
             pts,
             quantization_bits=bits,

@@ -35,7 +35,8 @@ from typing import Any
 
 import numpy as np
 
-from lwbench import Frame, Param, PayloadError, RepresentationCodec, check_count, check_encodable, checked_cloud, hookimpl
+import lwbench
+from lwbench import Frame, Param, PayloadError, RepresentationCodec, check_count, checked_cloud, hookimpl
 
 __all__ = ["LazCodec", "check_las", "read_laz", "MIN_BITS_PER_POINT"]
 
@@ -186,7 +187,7 @@ class LazCodec(RepresentationCodec):
             raise ValueError(
                 f"laz: a coordinate of {float(np.abs(pts).max()):.1f} m does not fit LAS int32 at scale {scale}"
             )
-        check_encodable(pts, self.name, slack=np.sqrt(3.0) * scale)  # what read_laz accepts
+        lwbench.check_encodable(pts, self.name, slack=np.sqrt(3.0) * scale)  # what read_laz accepts
         meta: dict[str, Any] = {"n": len(pts), "scale": scale}
         intensity = None
         if self.config["intensity"] and frame.intensity is not None:
