@@ -67,7 +67,6 @@ class CloudiniCodec(RepresentationCodec):
 
     def encode(self, frame: Frame) -> bytes:
         resolution = float(self.config["resolution"])
-        lwbench.check_encodable(frame.points, self.name, slack=np.sqrt(3.0) * resolution)  # what the decoder accepts
         columns = [np.asarray(frame.points, dtype=np.float32)]
         fields = _FIELDS[0]
         if self.config["intensity"] and frame.intensity is not None:
@@ -81,6 +80,7 @@ class CloudiniCodec(RepresentationCodec):
                 f"cloudini: cannot send this scan at resolution {resolution}: {len(body)} bytes for "
                 f"{len(cloud)} points, below the decoder's {MIN_BITS_PER_POINT} bits per point"
             )
+        lwbench.check_encodable(frame.points, self.name, slack=np.sqrt(3.0) * resolution)  # what the decoder accepts
         meta: dict[str, Any] = {"n": len(cloud), "resolution": resolution, "fields": list(fields)}
         return self.make_payload(frame, meta, body)
 

@@ -187,7 +187,6 @@ class LazCodec(RepresentationCodec):
             raise ValueError(
                 f"laz: a coordinate of {float(np.abs(pts).max()):.1f} m does not fit LAS int32 at scale {scale}"
             )
-        lwbench.check_encodable(pts, self.name, slack=np.sqrt(3.0) * scale)  # what read_laz accepts
         meta: dict[str, Any] = {"n": len(pts), "scale": scale}
         intensity = None
         if self.config["intensity"] and frame.intensity is not None:
@@ -201,6 +200,7 @@ class LazCodec(RepresentationCodec):
             check_las(body, len(pts), self.name)
         except PayloadError as exc:  # never write what the decoder refuses
             raise ValueError(f"laz: cannot send this scan at scale {scale}: {exc}") from None
+        lwbench.check_encodable(pts, self.name, slack=np.sqrt(3.0) * scale)  # what read_laz accepts
         return self.make_payload(frame, meta, body)
 
     def decode(self, data: bytes) -> np.ndarray:
