@@ -17,6 +17,11 @@ codec, parameters, dataset, metric, measured vs required, frames and the worst f
 returns the :class:`lwbench.gates.GateResult` for further asserts. ``codec`` may be a Codec
 class that is not installed as a plugin (the codec under development).
 
+A gate that fails is reported as its message alone (where in the test, then what was missed),
+not as forty lines of lwbench's own source above it; ``pytest.raises(GateFailure)`` still works.
+``lwbench_benchmark`` asks for pytest-benchmark's ``benchmark`` fixture by name, so
+``pytest --benchmark-only`` counts it as a benchmark (and ``--benchmark-skip`` skips it).
+
 Options: ``--lwbench-store PATH`` (or ini ``lwbench_store``) names a results store to reuse and
 extend -- e.g. the one an earlier CI step wrote with ``lwbench run`` -- instead of a fresh one
 per session.
@@ -24,6 +29,7 @@ per session.
 
 from __future__ import annotations
 
+import importlib.util
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -31,6 +37,22 @@ from typing import Any
 import pytest
 
 _RUN_OPTIONS = ("params", "dataset", "dataset_params", "frames", "seed", "metric_params", "sequence_metrics")
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo):
+    """A failed gate's report is its message and the test line that called it: the traceback
+    through lwbench's runner says nothing a gate's user can act on."""
+    report = yield
+    if report.failed and call.excinfo is not None and type(call.excinfo.value).__name__ == "GateFailure":
+        from lwbench.gates import GateFailure
+
+        if isinstance(call.excinfo.value, GateFailure):
+            where = [e for e in call.excinfo.traceback if Path(str(e.path)) == Path(str(item.path))]
+            # The message first: pytest's one-line summary shows the first line.
+            at = f"\n(at {where[-1].path}:{where[-1].lineno + 1}, in {item.name})" if where else ""
+            report.longrepr = f"{call.excinfo.value}{at}"
+    return report
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
@@ -77,17 +99,31 @@ def lwbench_gate(lwbench_store: Path) -> Callable[..., Any]:
     return gate
 
 
-@pytest.fixture
-def lwbench_benchmark(request: pytest.FixtureRequest, lwbench_store: Path) -> Callable[..., Any]:
-    """``lwbench_benchmark(codec, **run_options)``: time encode + decode of the gated frames with
-    pytest-benchmark (so ``--benchmark-compare-fail=mean:10%`` gates speed against a saved
-    baseline, never against absolute times), with the configuration's quality figures in the
-    benchmark JSON's ``extra_info``."""
-    try:
-        benchmark = request.getfixturevalue("benchmark")
-    except pytest.FixtureLookupError:
-        pytest.fail("lwbench_benchmark needs pytest-benchmark: pip install pytest-benchmark")
+def _benchmark_fixture() -> Callable[..., Any]:
+    """``lwbench_benchmark`` takes pytest-benchmark's ``benchmark`` as an argument where the plugin is
+    installed: pytest-benchmark marks a test as a benchmark only when ``benchmark`` is among the
+    fixtures it names (``--benchmark-only`` skipped every gate that looked it up at run time)."""
+    if importlib.util.find_spec("pytest_benchmark") is None:
 
+        @pytest.fixture
+        def lwbench_benchmark(lwbench_store: Path) -> Callable[..., Any]:
+            """``lwbench_benchmark(codec, **run_options)``: needs pytest-benchmark."""
+            pytest.fail("lwbench_benchmark needs pytest-benchmark: pip install pytest-benchmark", pytrace=False)
+
+        return lwbench_benchmark
+
+    @pytest.fixture
+    def lwbench_benchmark(benchmark: Any, lwbench_store: Path) -> Callable[..., Any]:
+        """``lwbench_benchmark(codec, **run_options)``: time encode + decode of the gated frames with
+        pytest-benchmark (so ``--benchmark-compare-fail=mean:10%`` gates speed against a saved
+        baseline, never against absolute times), with the configuration's quality figures in the
+        benchmark JSON's ``extra_info``."""
+        return _bench(benchmark, lwbench_store)
+
+    return lwbench_benchmark
+
+
+def _bench(benchmark: Any, lwbench_store: Path) -> Callable[..., Any]:
     def bench(codec: str | type, rounds: int = 5, **kwargs: Any):
         from lwbench.gates import gate_plan, run_gate
         from lwbench.run.evaluate import encode_decode
@@ -117,3 +153,6 @@ def lwbench_benchmark(request: pytest.FixtureRequest, lwbench_store: Path) -> Ca
         return result
 
     return bench
+
+
+lwbench_benchmark = _benchmark_fixture()

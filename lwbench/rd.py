@@ -43,6 +43,7 @@ from lwbench.metric import ALL_CURVES, HIGHER, LOWER, MetricId
 __all__ = [
     "Curve",
     "RDError",
+    "TooFewPoints",
     "bd_distortion",
     "bd_rate",
     "curves_from_entries",
@@ -58,6 +59,14 @@ MIN_BD_POINTS = 4
 
 class RDError(LwbenchError):
     """A rate-distortion computation that the data cannot support (too few points, no overlap)."""
+
+
+class TooFewPoints(RDError):
+    """A curve with fewer efficient points than the Bjøntegaard delta needs (``curve`` says which)."""
+
+    def __init__(self, message: str, curve: Curve) -> None:
+        super().__init__(message)
+        self.curve = curve
 
 
 @dataclass(frozen=True)
@@ -141,10 +150,12 @@ def curves_from_entries(
     rate: str = "bytes",
     info: Mapping[str, MetricId] | None = None,
     left_out: list | None = None,
+    limits: Mapping[str, float] | None = None,
 ) -> dict[tuple[str, str], Curve]:
     """One :class:`Curve` per (dataset, codec) from leaderboard entries (their mean values).
     Entries flagged as :func:`left_out_flags` says, or lacking either value, are left out (and
-    appended to ``left_out`` as ``(entry, reason)``)."""
+    appended to ``left_out`` as ``(entry, reason)``; the reason names the guard's value and limit,
+    ``limits`` being the board's settings, e.g. ``{"min_coverage": 0.8}``)."""
     better = getattr((info or {}).get(distortion), "better", "") or LOWER
     if better not in (LOWER, HIGHER):
         raise RDError(f"{distortion} has no better direction, so it is not a distortion")
@@ -152,7 +163,8 @@ def curves_from_entries(
     grouped: dict[tuple[str, str], list[Point]] = defaultdict(list)
     for e in entries:
         r, d = e.shown(rate), e.shown(distortion)
-        reason = next((f for f in e.flags if f in skip), None)
+        flag = next((f for f in e.flags if f in skip), None)
+        reason = None if flag is None else _flag_reason(e, flag, info, limits or {})
         if reason is None and (r is None or d is None or not math.isfinite(r) or not math.isfinite(d) or r <= 0):
             reason = f"no finite {rate} / {distortion}"
         if reason is not None:
@@ -164,6 +176,23 @@ def curves_from_entries(
         key: Curve(key[1], key[0], tuple(pareto_front(pts, better)), better)
         for key, pts in sorted(grouped.items())
     }
+
+
+def _flag_reason(entry, flag: str, info: Mapping[str, MetricId] | None, limits: Mapping[str, float]) -> str:
+    """``low_coverage (coverage 0.87 < 0.9; --min-coverage sets the limit)``: the flag, and the
+    figure that raised it, so a user knows how far the point is from the curve."""
+    for metric, m in (info or {}).items():
+        guard = getattr(m, "guard", None)
+        if guard is None or guard.flag != flag:
+            continue
+        value = entry.value(metric)
+        limit = limits.get(guard.setting, guard.below if guard.below is not None else guard.above)
+        if value is None or limit is None:
+            return flag
+        sign = "<" if guard.below is not None else ">"
+        setting = f"; --{guard.setting.replace('_', '-')} sets the limit" if guard.setting else ""
+        return f"{flag}: {metric} {value:.3g} {sign} {limit:g}{setting}"
+    return flag
 
 
 def quality(distortion: np.ndarray, better: str, unit: str = "") -> np.ndarray:
@@ -189,18 +218,21 @@ def _pchip(x: np.ndarray, y: np.ndarray):
 def _check(ref: Curve, test: Curve) -> None:
     for c in (ref, test):
         if len(c.points) < MIN_BD_POINTS:
-            raise RDError(
+            raise TooFewPoints(
                 f"{c.codec} on {c.dataset}: {len(c.points)} efficient point(s); the Bjøntegaard delta needs "
-                f"at least {MIN_BD_POINTS} per curve (sweep more settings)"
+                f"at least {MIN_BD_POINTS} per curve (sweep more settings)",
+                c,
             )
 
 
-def _mean_gap(xa: np.ndarray, ya: np.ndarray, xb: np.ndarray, yb: np.ndarray, what: str) -> float:
-    """Mean of ``f_b(x) - f_a(x)`` over the overlap of the two x ranges (PCHIP, exact integral)."""
+def _mean_gap(xa: np.ndarray, ya: np.ndarray, xb: np.ndarray, yb: np.ndarray, what: str, shown=None) -> float:
+    """Mean of ``f_b(x) - f_a(x)`` over the overlap of the two x ranges (PCHIP, exact integral).
+    ``shown`` writes an x value as the user knows it (the rate in bytes, not its log10)."""
     lo, hi = max(xa.min(), xb.min()), min(xa.max(), xb.max())
     if not hi > lo:
-        raise RDError(f"the two curves do not overlap in {what} ({xa.min():.4g}..{xa.max():.4g} vs "
-                      f"{xb.min():.4g}..{xb.max():.4g})")
+        fmt = shown or (lambda x: f"{x:.4g}")
+        raise RDError(f"the two curves do not overlap in {what} (reference {fmt(xa.min())}..{fmt(xa.max())} vs "
+                      f"{fmt(xb.min())}..{fmt(xb.max())})")
     fa, fb = _pchip(xa, ya), _pchip(xb, yb)
     return float((fb.integrate(lo, hi) - fa.integrate(lo, hi)) / (hi - lo))
 
@@ -209,16 +241,22 @@ def bd_rate(ref: Curve, test: Curve, unit: str = "") -> float:
     """BD-rate of ``test`` against ``ref`` in percent (negative: ``test`` needs fewer bytes)."""
     _check(ref, test)
     qa, qb = quality(ref.distortions, ref.better, unit), quality(test.distortions, test.better, unit)
-    gap = _mean_gap(qa, np.log10(ref.rates), qb, np.log10(test.rates), "quality")
+    gap = _mean_gap(qa, np.log10(ref.rates), qb, np.log10(test.rates), "quality", lambda q: f"{q:.4g} dB")
     return (10.0**gap - 1.0) * 100.0
 
 
-def bd_distortion(ref: Curve, test: Curve, unit: str = "") -> float:
+def _rate_text(log_rate: float, rate_unit: str) -> str:
+    rate = 10**log_rate
+    text = f"{rate:,.0f}" if rate >= 100 else f"{rate:.3g}"
+    return f"{text} {rate_unit}" if rate_unit else text
+
+
+def bd_distortion(ref: Curve, test: Curve, unit: str = "", rate_unit: str = "") -> float:
     """BD-distortion: mean quality difference (dB, or the metric's unit) of ``test`` over ``ref``
     at equal rate (positive: ``test`` is better)."""
     _check(ref, test)
     qa, qb = quality(ref.distortions, ref.better, unit), quality(test.distortions, test.better, unit)
-    return _mean_gap(np.log10(ref.rates), qa, np.log10(test.rates), qb, "rate")
+    return _mean_gap(np.log10(ref.rates), qa, np.log10(test.rates), qb, "rate", lambda lr: _rate_text(lr, rate_unit))
 
 
 def front_across(curves: Mapping[tuple[str, str], Curve], dataset: str) -> list[tuple[str, Point]]:
@@ -239,10 +277,13 @@ def summarise(
     at_rate: float | None = None,
     at_distortion: float | None = None,
     reference: str | None = None,
+    left_out: list | None = None,
+    rate_unit: str = "",
 ) -> dict[str, dict]:
     """Per dataset: each codec's curve, the front across codecs, values at an equal rate or
     distortion (``None`` = the curve does not reach it) and, with a ``reference`` codec, every
-    other codec's BD-rate / BD-distortion against it (or the reason it cannot be computed)."""
+    other codec's BD-rate / BD-distortion against it (or the reason it cannot be computed: a
+    curve short of points names the configurations ``left_out`` took from it, and why)."""
     out: dict[str, dict] = {}
     for (dataset, codec), curve in curves.items():
         ds = out.setdefault(dataset, {"curves": {}, "front": [], "at_rate": {}, "at_distortion": {}, "bd": {}})
@@ -263,11 +304,33 @@ def summarise(
             if ref is None:
                 ds["bd"][codec] = {"error": f"no curve for the reference {reference!r} on this dataset"}
                 continue
-            try:
-                ds["bd"][codec] = {
-                    "bd_rate_pct": bd_rate(ref, curve, unit),
-                    "bd_distortion": bd_distortion(ref, curve, unit),
-                }
-            except RDError as exc:
-                ds["bd"][codec] = {"error": str(exc)}
+            ds["bd"][codec] = _deltas(ref, curve, unit, left_out or [], rate_unit)
     return out
+
+
+def _deltas(ref: Curve, test: Curve, unit: str, left_out: list, rate_unit: str) -> dict:
+    """BD-rate and BD-distortion, each on its own: curves that overlap in quality but not in rate
+    (a coarse codec against a fine one) still get their BD-rate. ``error`` when neither exists,
+    else ``bd_rate_error`` / ``bd_distortion_error`` for the one that does not."""
+    out: dict = {}
+    errors: list[str] = []
+    for key, delta in (("bd_rate_pct", bd_rate), ("bd_distortion", bd_distortion)):
+        try:
+            out[key] = delta(ref, test, unit) if delta is bd_rate else delta(ref, test, unit, rate_unit)
+        except TooFewPoints as exc:
+            errors.append(str(exc) + _left_out_text(exc.curve, left_out))
+            out[key.replace("_pct", "") + "_error"] = errors[-1]
+        except RDError as exc:
+            errors.append(str(exc))
+            out[key.replace("_pct", "") + "_error"] = errors[-1]
+    if len(errors) == 2:
+        return {"error": errors[0] if errors[0] == errors[1] else "; ".join(errors)}
+    return out
+
+
+def _left_out_text(curve: Curve, left_out: list) -> str:
+    """What a short curve lost: the configurations of its codec left off the curves, and why."""
+    lost = [(e.label, why) for e, why in left_out if e.dataset == curve.dataset and e.codec == curve.codec]
+    if not lost:
+        return ""
+    return f"; left out of {curve.codec}'s curve: " + "; ".join(f"{label} ({why})" for label, why in lost)

@@ -178,16 +178,20 @@ def test_copy_counts_that_do_not_add_up_are_refused() -> None:
 
 
 def test_dual_returns_in_one_cell_keep_full_coverage() -> None:
-    """A generated scan with many near-coincident returns: every firing of an off-grid room scan
-    has a second return 0.2 mm behind the first (far below the 14-bit step), as a dual-return
-    sensor writes on a hard surface. Draco keeps both; the range metric pairs both."""
+    """A generated scan with two returns in every range-image cell: every firing of an off-grid
+    room scan has a second return three 14-bit steps behind the first, as a dual-return sensor
+    writes on a thin surface. Draco keeps both; the range metric pairs both. (Returns closer than
+    a step decode to one point twice, and the range metric counts exact copies once, on both
+    clouds alike: such a pair is one return after quantization.)"""
     from lwbench_metrics.ranges import RangeMetric
 
     from lwbench import CodecKind, Evaluation
     from lwbench.testing import room_scan
 
     room = room_scan(get_sensor("vlp16"), seed=3)
-    second = room.points * np.float32(1 + 0.0002 / 4.0)
+    step = quantization_step(room.points, 14)
+    ray = room.points / np.linalg.norm(room.points, axis=1, keepdims=True)
+    second = (room.points + 3 * step * ray).astype(np.float32)
     dual = Frame(np.concatenate([room.points, second]), room.sensor)
     assert len(distinct_points(dual.points)) == len(dual)
     data = DracoCodec().encode(dual)

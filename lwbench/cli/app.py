@@ -3,7 +3,9 @@
 **One error boundary.** Every :class:`~lwbench.errors.LwbenchError` that leaves a command -- a
 built-in one or a plugin's, raised while parsing, planning or running -- is printed as one line
 (``error: ...``) and the process exits with status 2 (:class:`LwbenchGroup.main`); commands just
-raise. Anything else is a bug and keeps its traceback.
+raise. click's usage errors (an unknown option, ``--frames 0``, a missing argument) get the same
+one line, naming the command's ``--help``, instead of typer's five-line box. Anything else is a
+bug and keeps its traceback.
 
 **Plugin commands load lazily.** A plugin's ``lwbench_register_commands`` hook is called only when
 the command line names a command lwbench does not have, or when help lists every command -- not
@@ -34,12 +36,28 @@ class LwbenchGroup(TyperGroup):
 
     _plugins_loaded = False
 
-    def main(self, *args, **kwargs):
+    def main(self, *args, standalone_mode: bool = True, **kwargs):
         try:
-            return super().main(*args, **kwargs)
+            # Not standalone: click's exceptions come here, where they become one line.
+            rv = super().main(*args, standalone_mode=False, **kwargs)
         except LwbenchError as exc:
             print_error(str(exc))
             sys.exit(2)
+        except typer.TyperException as exc:  # click's errors (typer vendors click: this is their base)
+            if not standalone_mode:
+                raise
+            if type(exc).__name__ != "NoArgsIsHelpError":  # `lwbench` alone: typer has printed the help
+                print_error(usage_line(exc))
+            sys.exit(exc.exit_code)
+        except typer.Abort:
+            if not standalone_mode:
+                raise
+            err_console.print("Aborted.")
+            sys.exit(1)
+        if not standalone_mode:
+            return rv
+        # Not standalone, click returns typer.Exit's code instead of exiting with it.
+        sys.exit(rv if isinstance(rv, int) else 0)
 
     def get_command(self, ctx, cmd_name: str):
         command = super().get_command(ctx, cmd_name)
@@ -85,6 +103,15 @@ class LwbenchGroup(TyperGroup):
             if not isinstance(getattr(command, "rich_help_panel", None), str):  # None or typer's placeholder
                 command.rich_help_panel = PLUGIN_PANEL
             self.add_command(command, name)
+
+
+def usage_line(exc: typer.TyperException) -> str:
+    """One line for a click error: what is wrong and, for a usage error, where the help is."""
+    message = " ".join(exc.format_message().split())
+    ctx = getattr(exc, "ctx", None)
+    if ctx is not None:
+        return f"{ctx.command_path}: {message} (see {ctx.command_path} --help)"
+    return message
 
 
 def _unset_help_is_false(command, ctx) -> None:

@@ -12,7 +12,7 @@ from lwbench.errors import LwbenchError, ParameterError, StoreError
 
 from .app import app, registry
 from .options import OUTPUT, RESULTS, ColumnsOpt, FormatOpt, MinCoverage, ShownDataset, SortOpt, StoreOpt
-from .output import console, escape, print_board, wanted_columns
+from .output import console, escape, print_board, wanted_columns, writable_folder
 from .running import BENCHMARK, board_sort
 
 
@@ -81,6 +81,7 @@ def rd(
     at_distortion: Annotated[float | None, typer.Option(
         help="Report each curve's rate at this distortion.", rich_help_panel=OUTPUT)] = None,
     format: Annotated[str, typer.Option("--format", help="table | json", rich_help_panel=OUTPUT)] = "table",
+    min_coverage: MinCoverage = None,
 ) -> None:
     """Rate-distortion from the sweep points in the store: each codec's curve, the Pareto front,
     values at equal rate / distortion (interpolated, never extrapolated) and BD-rate."""
@@ -93,12 +94,16 @@ def rd(
     info = reg.metric_info()
     check_metric_ids([distortion, rate], info, "lwbench rd")
     path = _store(store)
+    limits = {} if min_coverage is None else {"min_coverage": min_coverage}
     with ResultStore(path, readonly=True) as results:
-        entries = build_leaderboard(results, dataset=dataset, info=info)
+        entries = build_leaderboard(results, dataset=dataset, info=info, **limits)
+    if reference is not None and reference not in {e.codec for e in entries}:
+        shown = ", ".join(sorted({e.codec for e in entries})) or "none"
+        raise ParameterError(f"--reference {reference!r}: no such codec in {path} (stored: {shown})")
     left_out: list = []
-    curves = curves_from_entries(entries, distortion, rate=rate, info=info, left_out=left_out)
+    curves = curves_from_entries(entries, distortion, rate=rate, info=info, left_out=left_out, limits=limits)
     summary = summarise(curves, unit=info[distortion].unit, at_rate=at_rate, at_distortion=at_distortion,
-                        reference=reference)
+                        reference=reference, left_out=left_out, rate_unit=info[rate].unit)
     if not summary:
         raise LwbenchError(f"no unflagged configuration in {path} has both {rate} and {distortion}")
     skipped = [{"dataset": e.dataset, "label": e.label, "reason": why} for e, why in left_out]
@@ -131,11 +136,12 @@ def _print_rd(summary: dict, info, distortion: str, rate: str, reference: str | 
             vals = ", ".join(f"{c} {fmt.format(v) if v is not None else 'does not reach'}" for c, v in s[what].items())
             console.print(f"{'distortion at' if what == 'at_rate' else 'rate at'} {key:g}: {escape(vals)}")
         for codec, bd in s["bd"].items():
-            if "error" in bd:
-                console.print(f"BD vs {escape(str(reference))}: {escape(codec)}: {escape(bd['error'])}")
-            else:
-                console.print(f"BD vs {escape(str(reference))}: {escape(codec)}: BD-rate {bd['bd_rate_pct']:+.1f} %, "
-                              f"BD-distortion {bd['bd_distortion']:+.3g} dB")
+            parts = [bd["error"]] if "error" in bd else [
+                f"BD-rate {bd['bd_rate_pct']:+.1f} %" if "bd_rate_pct" in bd else f"no BD-rate: {bd['bd_rate_error']}",
+                f"BD-distortion {bd['bd_distortion']:+.3g} dB" if "bd_distortion" in bd
+                else f"no BD-distortion: {bd['bd_distortion_error']}",
+            ]
+            console.print(f"BD vs {escape(str(reference))}: {escape(codec)}: {escape(', '.join(parts))}")
 
 
 @app.command(rich_help_panel=BENCHMARK)
@@ -150,13 +156,20 @@ def report(
     """Write a self-contained HTML report: sortable leaderboard, RD curves, runtime, a gallery."""
     from lwbench.report import write_report
 
+    writable_folder(out)
     reg = registry()
     if config is not None:
         from lwbench.run import Study
         from lwbench.run.config import read_run_file
 
+        from .output import progress
+        from .running import RunProgress
+
         request = read_run_file(config).with_options(store=store)
-        outcome = Study.prepare(request, reg).run()
+        events: dict = {}  # one RunProgress per runner (a study has one per dataset x seed)
+        with progress() as shown:
+            outcome = Study.prepare(request, reg).run(
+                on_progress=lambda runner, event: events.setdefault(id(runner), RunProgress(shown, runner))(event))
         done = [(s.evaluated, s.skipped, s.failed) for s in outcome.summaries]
         console.print(f"{escape(str(config))}: evaluated {sum(d[0] for d in done)}, cached {sum(d[1] for d in done)}, "
                       f"{sum(d[2] for d in done)} failure(s) -> {escape(str(request.store_path))}")

@@ -12,7 +12,7 @@ from lwbench.errors import DataFormatError, ParameterError
 
 from .app import app, registry
 from .options import OUTPUT, CodecName, CodecSettings, DatasetArg, DatasetParams, Frames, Seed, words
-from .output import console, escape, progress_bar
+from .output import console, escape, progress, writable_folder
 
 PANEL = "Files"
 
@@ -43,13 +43,13 @@ def encode(
     one .lwbs stream file; the bytes are what lwbench run measures and what crosses the link."""
     from lwbench.transcode import codec_config, encode_dataset
 
+    writable_folder(out)
     reg = registry()
     config = codec_config(reg, codec, words(param), seed)
     spec, ds = open_source(reg, source, dataset_param, seed, frames)
-    with progress_bar() as progress:
-        task = progress.add_task(f"encoding with {config.label}", total=None)
+    with progress() as shown, shown.phase(f"encoding with {config.label}") as phase:
         summary = encode_dataset(reg, ds, config, out, stream=stream, frames=frames, source=spec.label,
-                                 on_frame=lambda done, n: progress.update(task, completed=done, total=n))
+                                 on_frame=lambda done, n: phase.update(done, total=n))
     ratio = summary.raw_bytes / summary.payload_bytes if summary.payload_bytes else float("nan")
     console.print(
         f"wrote {summary.frames} frame(s), {summary.payload_bytes:,} bytes ({ratio:.1f}x smaller than float32 "
@@ -74,6 +74,8 @@ def decode(
 
     if not file.exists():
         raise DataFormatError(f"{file} does not exist")
+    # A bag's folder must not exist yet (the bag writer makes it): check the folder it goes in.
+    writable_folder(out.parent if format == "bag" else out, "--out" if format != "bag" else "--out's parent")
     summary = decode_payloads(registry(), open_payloads(file), out, fmt=format, overrides=words(param),
                               storage=storage)
     where = summary.files[0] if format == "bag" else out

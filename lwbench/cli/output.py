@@ -3,11 +3,18 @@
 from __future__ import annotations
 
 import sys
+import tempfile
+from pathlib import Path
 
 from rich.console import Console
 from rich.markup import escape
 
-__all__ = ["console", "err_console", "escape", "print_board", "print_error", "progress_bar", "wanted_columns"]
+from lwbench.errors import ParameterError
+
+__all__ = [
+    "console", "err_console", "escape", "print_board", "print_error", "progress", "wanted_columns",
+    "writable_folder",
+]
 
 # Off a terminal (CI logs, pipes) rich would wrap tables at 80 columns; leaderboards are wide.
 console = Console(width=None if sys.stdout.isatty() else 200)
@@ -19,22 +26,30 @@ def print_error(message: str) -> None:
     err_console.print(f"[bold red]error:[/] {escape(message)}", highlight=False)
 
 
-def progress_bar(*, eta: bool = False):
-    """A progress bar on a terminal (nothing when stdout is a pipe or a file)."""
-    from rich.progress import (
-        BarColumn,
-        MofNCompleteColumn,
-        Progress,
-        TextColumn,
-        TimeElapsedColumn,
-        TimeRemainingColumn,
-    )
+def writable_folder(path: Path, option: str = "--out") -> Path:
+    """Create an output folder now and prove a file can be written in it -- before any work, so
+    that an unwritable ``--out`` (``/proc/x``, a file, a read-only mount) costs no simulation,
+    encoding or streaming. A real write, not ``os.access``: root passes every access check."""
+    if path.exists() and not path.is_dir():
+        raise ParameterError(f"{option} {path}: exists and is not a folder")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ParameterError(f"{option} {path}: cannot create the folder ({exc.strerror or exc})") from exc
+    try:
+        with tempfile.TemporaryFile(dir=path):
+            pass
+    except OSError as exc:
+        raise ParameterError(f"{option} {path}: cannot write in the folder ({exc.strerror or exc})") from exc
+    return path
 
-    columns = [TextColumn("[progress.description]{task.description}"), BarColumn(), MofNCompleteColumn(),
-               TimeElapsedColumn()]
-    if eta:
-        columns += [TextColumn("eta"), TimeRemainingColumn()]
-    return Progress(*columns, console=console, transient=False, disable=not sys.stdout.isatty())
+
+def progress():
+    """The phases of a long command: a bar on a terminal, plain lines on stderr elsewhere (see
+    :mod:`lwbench.progress`)."""
+    from lwbench.progress import Progress
+
+    return Progress(console=err_console)
 
 
 def wanted_columns(columns: str | None, available) -> tuple[str, ...] | None:
@@ -43,7 +58,9 @@ def wanted_columns(columns: str | None, available) -> tuple[str, ...] | None:
 
     if not columns:
         return None
-    wanted = tuple(c.strip() for c in columns.split(",") if c.strip())
+    wanted = tuple(c.strip() for c in columns.split(","))
+    if not all(wanted):
+        raise ParameterError(f"--columns {columns!r}: an empty metric id (two commas, or one at an end)")
     check_metric_ids(list(wanted), available, "--columns")
     return wanted
 

@@ -3,12 +3,13 @@ the :class:`~lwbench.run.Study`, print the board of what it asked for."""
 
 from __future__ import annotations
 
+import importlib.util
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
-from lwbench.errors import ParameterError
+from lwbench.errors import MissingDependencyError, ParameterError
 
 from .app import app, registry
 from .options import (
@@ -27,7 +28,7 @@ from .options import (
     Sweeps,
     words,
 )
-from .output import console, err_console, escape, print_board, progress_bar, wanted_columns
+from .output import console, err_console, escape, print_board, progress, wanted_columns
 
 BENCHMARK = "Benchmark"
 #: lwbench.run.DEFAULT_TIMEOUT_S, written out: importing lwbench.run here would slow every command's start.
@@ -45,13 +46,19 @@ def run(
     workers: Annotated[int, typer.Option(
         help="Parallel worker processes (frames in parallel).", min=1, rich_help_panel=EXECUTION)] = 1,
     seed: Seed = 0,
-    sequence_metrics: Annotated[bool, typer.Option(
-        help="Localization/occupancy metrics when poses exist.", rich_help_panel=METRICS)] = True,
+    # Only the negative flag (the metrics are on by default): a --x/--no-x pair is wider than typer's
+    # option column at 80 columns, where rich cut it to "--no-sequence-met…".
+    no_sequence_metrics: Annotated[bool, typer.Option(
+        "--no-sequence-metrics", help="Skip the localization and occupancy metrics (run when the dataset has poses).",
+        rich_help_panel=METRICS)] = False,
+    sequence_metrics_on: Annotated[bool, typer.Option(
+        "--sequence-metrics", hidden=True, help="The default (kept so that scripts that say it still run).")] = False,
     retry_failed: Annotated[bool, typer.Option(help="Re-evaluate stored failures.", rich_help_panel=EXECUTION)] = False,
     force: Annotated[bool, typer.Option(
         "--force", help="Recompute every row, even those already stored.", rich_help_panel=EXECUTION)] = False,
     metric_param: Annotated[list[str] | None, typer.Option(
-        "--metric-param", help="METRIC.KEY=VALUE, e.g. geometry.peak=59.70 (part of the key).",
+        "--metric-param", help="METRIC.KEY=VALUE: a metric's setting, part of each row's key "
+        "(geometry.peak: the PSNR peak, m).",
         rich_help_panel=METRICS)] = None,
     sort: SortOpt = None,
     columns: ColumnsOpt = None,
@@ -78,6 +85,8 @@ def run(
     from lwbench.run.config import read_run_file
     from lwbench.store import ResultStore
 
+    if sequence_metrics_on and no_sequence_metrics:
+        raise ParameterError("--sequence-metrics and --no-sequence-metrics: give one of them")
     reg = registry()
     options = {"retry_failed": retry_failed, "force": force, "isolate": isolate, "timeout_s": timeout or None,
                "memory_mb": memory_limit, "executor": executor, "address": address}
@@ -89,8 +98,9 @@ def run(
     else:
         request = RunRequest.from_words(
             reg, dataset=dataset, dataset_params=words(dataset_param), codecs=words(codec), params=words(param),
-            metric_params=words(metric_param), seed=seed, frames=frames, sequence_metrics=sequence_metrics,
+            metric_params=words(metric_param), seed=seed, frames=frames, sequence_metrics=not no_sequence_metrics,
             store=store, workers=workers, **options)
+    _refuse_conflicts(request)
     info = reg.metric_info()
     wanted = wanted_columns(columns, info)
     if sort is not None:
@@ -124,6 +134,18 @@ def run(
         print_board(entries, sort, wanted, info)
 
 
+def _refuse_conflicts(request) -> None:
+    """Options that contradict each other are refused, not resolved behind the user's back (the
+    runner would isolate an --in-process run with --workers 2; --address alone would be ignored)."""
+    if not request.isolate and request.workers > 1:
+        raise ParameterError(f"--in-process evaluates in this process, one at a time: it cannot take --workers "
+                             f"{request.workers} (leave out one of them)")
+    if request.address is not None and request.executor != "ray":
+        raise ParameterError(f"--address {request.address} names a Ray cluster: it needs --executor ray")
+    if request.executor == "ray" and importlib.util.find_spec("ray") is None:  # before any work starts
+        raise MissingDependencyError("--executor ray needs Ray, which is not installed: pip install 'lwbench[ray]'")
+
+
 def board_sort(info) -> str:
     """The metric a board is sorted by when ``--sort`` is not given."""
     from lwbench.leaderboard import headline_metric
@@ -132,15 +154,34 @@ def board_sort(info) -> str:
 
 
 def _run_with_progress(runner):
-    with progress_bar(eta=True) as progress:
-        tasks: dict[str, int] = {}
+    with progress() as shown:
+        return runner.run(RunProgress(shown, runner))
 
-        def on_progress(event) -> None:
-            if event.phase not in tasks:
-                title = "frames" if event.phase == "frames" else "sequence metrics"
-                tasks[event.phase] = progress.add_task(title, total=event.total)
-            row = event.row
-            what = f"{row.codec} frame {row.frame}" if row.kind == "frame" else f"{row.codec} · {row.part}"
-            progress.update(tasks[event.phase], total=event.total, completed=event.done, description=what)
 
-        return runner.run(on_progress)
+class RunProgress:
+    """A runner's events as phases: the frames (encode, decode and frame metrics of every codec;
+    a simulated dataset's scans are simulated here too, frame by frame), then the sequence
+    metrics. The frames phase is open from the start, so that a long first frame (a simulation,
+    a worker starting) is already reported."""
+
+    def __init__(self, shown, runner) -> None:
+        self.shown, self.runner = shown, runner
+        self.frames = shown.phase("frames (encode, decode, frame metrics)", announce=False)
+        self.sequence = None
+
+    def __call__(self, event) -> None:
+        row = event.row
+        if event.phase == "frames":
+            self.frames.update(event.done, total=event.total, what=f"last: {row.codec} frame {row.frame}",
+                               part=row.codec)
+            if event.done >= event.total and getattr(self.runner, "sequence", None) is not None:
+                self._sequence_phase()
+            return
+        phase = self._sequence_phase()
+        phase.update(event.done, total=event.total, what=f"last: {row.codec} · {row.part}", part=row.codec)
+
+    def _sequence_phase(self):
+        if self.sequence is None:
+            self.frames.finish()
+            self.sequence = self.shown.phase("sequence metrics")
+        return self.sequence

@@ -10,7 +10,7 @@ import typer
 from .app import app, registry
 from .files import PANEL, open_source
 from .options import DATA, OUTPUT, Frames
-from .output import console, escape, progress_bar
+from .output import console, escape, progress, writable_folder
 
 
 @app.command(rich_help_panel=PANEL)
@@ -27,15 +27,18 @@ def simulate(
     The simulator is the default dataset (the installed dataset that declares ``is_default``)."""
     from lwbench.io import write_kitti_sequence
 
+    writable_folder(out)
     reg = registry()
     words = [f"scene={scene}", f"seed={seed}", *([f"sensor={sensor}"] if sensor is not None else [])]
     _, ds = open_source(reg, None, words, seed, frames)
     n = min(len(ds), frames) if frames else len(ds)
-    with progress_bar() as progress:
-        task = progress.add_task(f"simulating {scene}", total=n)
-        scans = []
-        for i in range(n):
-            scans.append(ds[i])
-            progress.advance(task)
-    write_kitti_sequence(scans, out)
+    with progress() as shown:
+        with shown.phase(f"simulating {scene}", n) as phase:
+            scans = []
+            for i in range(n):
+                phase.update(what=f"scan {i}")
+                scans.append(ds[i])
+                phase.advance()
+        with shown.phase(f"writing {out}", 1):
+            write_kitti_sequence(scans, out)
     console.print(f"wrote {len(scans)} scans of {scene!r} to {escape(str(out))} (run: lwbench run --dataset {out})")

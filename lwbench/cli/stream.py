@@ -9,7 +9,7 @@ import typer
 
 from .app import app, registry
 from .options import CODECS, DATA, OUTPUT, DatasetOpt, DatasetParams, Sweeps, words
-from .output import console, escape
+from .output import console, escape, progress, writable_folder
 
 PANEL = "Link"
 LINK = "Link model"
@@ -60,6 +60,7 @@ def stream(
     from lwbench.run import frames_for, parse_assignments, parse_sweeps, resolve_dataset
     from lwbench.run.plan import expand_codec_configs
 
+    writable_folder(out)  # before the study: an unwritable --out must not cost the whole stream
     reg = registry()
     names = list(dict.fromkeys(words(codec))) or list(DEFAULT_STREAM_CODECS)
     sweeps = parse_sweeps(words(param), names, "--param")
@@ -71,11 +72,17 @@ def stream(
                               restart_at=restart_base_at, encode=encode)
     console.print(f"[bold]lwbench stream[/]: {escape(spec.label)} · {frames} scans · "
                   f"{len(configs)} codec(s) x {len(links)} link(s), one stream at a time")
-    result = run_study(
-        reg, spec, configs, links, settings,
-        on_start=lambda c, link: console.print(f"  streaming {escape(c.name)} through {escape(link.label)} ..."),
-    )
-    out.mkdir(parents=True, exist_ok=True)
+    with progress() as shown:
+        reading = shown.phase(f"reading the {frames} scans of {spec.label}", frames)
+        streams: list = []
+
+        def on_start(config, link) -> None:  # one phase per stream: its heartbeat says it is alive
+            for phase in (reading, *streams):
+                phase.finish()
+            streams.append(shown.phase(f"streaming {config.name} through {link.label}"))
+
+        result = run_study(reg, spec, configs, links, settings, on_start=on_start,
+                           on_frame=lambda done, n: reading.update(done, total=n))
     (out / "stream.json").write_text(result.to_json())
     header, rows = table_rows(result.runs)
     table = Table(title=f"Streams at {result.rate_hz:g} Hz (on time = decoded before the next scan is due)",

@@ -104,8 +104,23 @@ def reach_of(data: bytes, seed: bytes | None, sensors) -> tuple[float, str]:
     original = _named_sensor(seed, sensors) if seed is not None else None
     if original is not None:
         sensor = _named_sensor(data, sensors) or original
+        declared = _declared_reach(data)
+        if declared is not None and declared > sensor.max_range:
+            return coordinate_bound(declared), f"its header declares returns to {declared:g} m"
         return coordinate_bound(sensor.max_range), f"its sensor sees to {sensor.max_range:g} m"
     return coordinate_bound(None), "no LiDAR return is that far"
+
+
+def _declared_reach(data: bytes) -> float | None:
+    """A payload's own ``reach_m`` (the farthest return its encoder saw, e.g. rangeimage's, which
+    keeps returns past its sensor model's max range): the header bound its decoder enforces."""
+    from lwbench.payload import Payload
+
+    try:
+        reach = Payload.from_bytes(data).meta.get("reach_m")
+    except Exception:  # noqa: BLE001 - a payload that does not parse declares nothing
+        return None
+    return float(reach) if isinstance(reach, (int, float)) and not isinstance(reach, bool) and reach > 0 else None
 
 
 def judge(out: object, data: bytes, sensors, seed: bytes | None = None) -> tuple[str, str]:

@@ -24,7 +24,7 @@ from .session import StreamRun, StreamSettings, reference_map, run_stream
 from .shaper import KB, LinkModel
 from .wire import HEADER
 
-__all__ = ["PAPER_FIG6D", "StudyResult", "fig6d", "run_study", "table_rows"]
+__all__ = ["PAPER_FIG6D", "StudyResult", "dropped_text", "fig6d", "latency_split_text", "run_study", "table_rows"]
 
 # The VSGP paper, Fig. 6d (simulated mine tunnel, scout -> base over 2.4 GHz WiFi, measured with ifstat).
 PAPER_FIG6D = {"raw": (1750.0, 840e6), "gmm": (25.8, 12.4e6), "vsgp": (18.2, 8.7e6)}  # KB/s, bytes per run
@@ -56,11 +56,18 @@ def run_study(
     *,
     on_run: Callable[[StreamRun], None] | None = None,
     on_start: Callable[[CodecConfig, LinkModel], None] | None = None,
+    on_frame: Callable[[int, int], None] | None = None,
 ) -> StudyResult:
+    """Every (link, codec) stream in turn; ``on_frame(done, n)`` while the frames are read first
+    (for the simulator: simulated, minutes for a long sequence), ``on_start`` before each stream."""
     ds = dataset.build(registry)
     if len(ds) < settings.frames:
         raise ParameterError(f"stream: {dataset.label} has {len(ds)} frames, asked for {settings.frames}")
-    frames = [ds[i] for i in range(settings.frames)]
+    frames = []
+    for i in range(settings.frames):
+        frames.append(ds[i])
+        if on_frame is not None:
+            on_frame(i + 1, settings.frames)
     rate = frames[0].sensor.rate_hz
     reference = reference_map(frames, settings.voxel)
     runs = []
@@ -79,19 +86,37 @@ def run_study(
 
 def table_rows(runs: Sequence[StreamRun]) -> tuple[list[str], list[list[str]]]:
     """The per-codec table: what the issue asks each stream to report."""
-    header = ["codec", "link", "KB/s", "total bytes", "on time", "late", "dropped", "lost", "rejected",
-              "latency ms (median / p95)", "link in a period", "map IoU"]
+    header = ["codec", "link", "KB/s", "total bytes", "on time", "late", "dropped (why)", "lost", "rejected",
+              "latency ms (median / p95)", "median ms: encode / queue / transfer / decode",
+              "link in a period", "map IoU"]
     rows = []
     for r in runs:
         s = r.summary()
         lat = "–" if s["latency_ms_median"] is None else f"{s['latency_ms_median']:.0f} / {s['latency_ms_p95']:.0f}"
         rows.append([
             r.codec, r.link.label, f"{s['kbps']:,.1f}", f"{s['wire_bytes']:,}", f"{s['on_time']}/{s['frames']}",
-            str(s["late"]), str(s["dropped"]), str(s["lost"]), str(s["rejected"]), lat,
+            str(s["late"]), dropped_text(s["dropped"], s["dropped_why"]), str(s["lost"]), str(s["rejected"]), lat,
+            latency_split_text(s["latency_parts_ms_median"]),
             "–" if s["link_on_time_share"] is None else f"{s['link_on_time_share']:.0%}",
             "–" if s["map_iou"] is None else f"{s['map_iou']:.3f}",
         ])
     return header, rows
+
+
+def dropped_text(dropped: int, why: dict[str, int]) -> str:
+    """``38 (encoder busy 38)``: how many frames never reached the base, and what stopped them."""
+    if not dropped:
+        return "0"
+    return f"{dropped} (" + ", ".join(f"{reason} {n}" for reason, n in sorted(why.items(), key=lambda kv: -kv[1])) + ")"
+
+
+def latency_split_text(parts: dict[str, float]) -> str:
+    """The median of each part of a decoded frame's latency (the parts' medians need not add up
+    to the latency's median): where the time goes, the scout's CPU, the queue, the link or the base's."""
+    keys = ("encode", "queue", "transfer", "decode")
+    if not parts:
+        return "–"
+    return " / ".join("–" if k not in parts else f"{parts[k]:.0f}" for k in keys)
 
 
 def ratio_line(runs: Sequence[StreamRun], a: str = "raw", b: str = "vsgp") -> str | None:

@@ -61,9 +61,7 @@ from lwbench import (
     RepresentationCodec,
     SensorModel,
     check_count,
-    check_encodable,
     checked_cloud,
-    coordinate_bound,
     hookimpl,
 )
 from lwbench.geometry import spherical
@@ -93,9 +91,7 @@ class RangeImageCodec(RepresentationCodec):
 
     name = "rangeimage"
     in_default_run = True
-    # 5: returns held to the payload's sensor's reach (the encoder widens its max range to cover
-    # the scan's farthest return, and refuses one beyond 10 km)
-    version = "5"  # 4: every return (overflow, exceptions, offsets), the grid from the data, body=
+    version = "4"  # 4: every return (overflow, exceptions, offsets), the grid from the data, body=
     description = "beam x azimuth range image of every return: grid from the scan, offsets, row-delta + LZMA2"
     params = (
         Param("mode", "str", "quantized", "quantized (error <= step/2) or lossless (exact float32 ranges)",
@@ -174,16 +170,7 @@ class RangeImageCodec(RepresentationCodec):
         return sensor, layers, width
 
     def encode(self, frame: Frame) -> bytes:
-        # Every return is kept (on the grid or verbatim), and the decoder holds its returns to the
-        # payload's sensor's reach (max range + 50 %): a return beyond 10 km is refused here; one
-        # beyond the sensor's reach (a later frame past the first's max range) widens the sensor
-        # the payload names to cover it, so that the decoder accepts what was written.
-        slack = self.config["step"] if self.config["mode"] == "quantized" else 0.0
-        check_encodable(frame.points, self.name, slack=slack)
         sensor, layers, width = self.layers(frame)
-        farthest = float(np.linalg.norm(frame.points.astype(np.float64), axis=1).max(initial=0.0)) + slack
-        if farthest > coordinate_bound(sensor.max_range):
-            sensor = sensor.with_max_range(min(MAX_COORDINATE, farthest))  # MAX_COORDINATE: every sensor's ceiling
         q = self._offset_step(layers.grid)
         _check_returns(layers)
         body, predict = self.config["body"], self.config["predict"]
@@ -191,10 +178,12 @@ class RangeImageCodec(RepresentationCodec):
             self.config["shuffle"] == "auto" and self.config["mode"] == "quantized"
         )
         codes = code_width(layers)
+        reach = _reach(frame.points, sensor.max_range)
         meta: dict[str, Any] = {
             "sensor": self.sensor_meta(sensor), "mode": self.config["mode"], "body": body, "predict": predict,
             "shuffle": shuffle, "columns": layers.grid.columns, "offset_step": q, "width": width, "code_width": codes,
             "cells": int(layers.mask.sum()), "overflow": len(layers.ov_values), "exceptions": len(layers.exceptions),
+            "reach_m": reach,
             # LZMA2's literal coder conditions on the previous byte, which predicts the offset codes
             # better than a row-delta does (KITTI frame 0: 27.0 vs 29.0 kB); zstd's Huffman does not.
             "code_predict": "none" if body == "lzma" else predict,
@@ -226,7 +215,22 @@ class RangeImageCodec(RepresentationCodec):
         layers, q, ranges = self._decode(data)
         dirs, _ = directions(layers, q)
         points = np.concatenate([dirs * ranges[:, None], layers.exceptions.astype(np.float64)])
-        return checked_cloud(points, self.name, max_range=layers.grid.sensor.max_range)
+        reach = self._reach_field(data)
+        return checked_cloud(points, self.name, max_range=layers.grid.sensor.max_range if reach is None else reach)
+
+    def _reach_field(self, data: bytes) -> float | None:
+        """The farthest return the encoder saw (``reach_m``, never below its sensor's max range):
+        the decode's coordinate bound. Version 4 keeps returns past the sensor model's max range
+        (a real Ouster sees past its preset's 120 m), so the sensor's reach alone is not the bound."""
+        reach = self.read_payload(data).meta.get("reach_m")
+        if reach is None:
+            # An early version-4 payload, or a crafted one that dropped the field: its sensor's reach
+            # (not the 10 km ceiling -- the independent fuzzer's dropped key decoded 3.7 km for a
+            # 120 m sensor that way).
+            return None
+        if not isinstance(reach, (int, float)) or isinstance(reach, bool) or not 0 < reach <= MAX_COORDINATE:
+            raise PayloadError(f"rangeimage payload: reach_m {reach!r} outside (0, {MAX_COORDINATE:g}] m")
+        return float(reach)
 
     def decode_image(self, data: bytes) -> tuple[SensorModel, np.ndarray]:
         """The grid (as a sensor model) and its layer-0 range image (float32, 0 = no return)."""
@@ -327,6 +331,18 @@ def _hole_filled(mask: np.ndarray, values: np.ndarray) -> np.ndarray:
     first = np.where(mask.any(axis=1), mask.argmax(axis=1), 0)
     idx = np.where(idx < 0, first[:, None], idx)
     return np.take_along_axis(full, idx, axis=1)
+
+
+def _reach(points: np.ndarray, max_range: float) -> float:
+    """``reach_m``: the scan's farthest return, rounded up to the metre, at least the sensor's max
+    range. A scan past :data:`lwbench.MAX_COORDINATE` is refused here rather than written as a
+    payload the decoder would refuse."""
+    far = float(np.linalg.norm(points.astype(np.float64), axis=1).max()) if len(points) else 0.0
+    if far > MAX_COORDINATE:
+        raise ParameterError(
+            f"rangeimage: a point {far:.4g} m from the sensor; no LiDAR return is farther than {MAX_COORDINATE:g} m"
+        )
+    return float(min(MAX_COORDINATE, np.ceil(max(far, max_range))))
 
 
 def _check_returns(layers: Layers) -> None:
