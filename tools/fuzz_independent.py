@@ -27,7 +27,8 @@ Seeds are the codecs' payloads on the kit's scans (lwbench.testing: room, tunnel
 verdict is judged here, by this tool's own rules:
 
 - ``PayloadError`` or a cloud within reach: fine -- within reach = no point farther than 10 km,
-  nor (for a codec whose valid payloads name their sensor) than that sensor's max range +50 %;
+  nor (for a codec whose valid payloads name their sensor) than that sensor's max range +50 %,
+  or than a reach the header declares (``reach_m``, rangeimage) +50 %;
 - anything else is counted: another exception type, ``absurd`` (a cloud beyond reach), ``bad
   output`` (not a finite float32 (M, 3)), ``over 1 s`` CPU, ``memory``, ``timeout``, ``crash``.
 
@@ -431,6 +432,9 @@ def _judge(out, data, seed_range, catalog, Payload, SensorModel) -> tuple[str, s
             own = SensorModel.from_wire(wire, catalog) if isinstance(wire, dict) else None
             if own is not None:
                 reach = min(MAX_COORDINATE_M, own.max_range * (1 + MARGIN))
+            declared = Payload.from_bytes(data).meta.get("reach_m")  # a header's own bound (rangeimage)
+            if isinstance(declared, (int, float)) and not isinstance(declared, bool) and declared > 0:
+                reach = min(MAX_COORDINATE_M, max(reach, float(declared) * (1 + MARGIN)))
         except Exception:  # noqa: BLE001, S110 - a sensor the case cannot name: the seed's reach
             pass
     dist = np.linalg.norm(out.astype(np.float64), axis=1)
