@@ -238,7 +238,7 @@ class SelectionCodec(Codec):
             raise SelectionError(f"{self.name}: selected index out of range [0, {len(frame)})")
         if len(np.unique(idx)) != len(idx):
             raise SelectionError(f"{self.name}: select() returned duplicate indices")
-        body = pack_points(frame.points[idx], self.config["encoding"], self.config["quant_step"])
+        body = pack_points(frame.points[idx], self.config["encoding"], self.config["quant_step"], self.name)
         return self.make_payload(frame, {}, body)
 
     def encode(self, frame: Frame) -> bytes:

@@ -18,7 +18,7 @@ import struct
 
 import numpy as np
 
-from lwbench.limits import check_count, checked_cloud
+from lwbench.limits import check_count, check_encodable, checked_cloud
 from lwbench.payload import PayloadError
 
 __all__ = ["POINT_ENCODINGS", "pack_points", "unpack_points"]
@@ -28,8 +28,11 @@ _HEAD = struct.Struct("<BI")  # encoding id, point count
 _QHEAD = struct.Struct("<4fB")  # origin xyz, step, bytes per value
 
 
-def pack_points(points: np.ndarray, encoding: str = "float32", step: float = 0.005) -> bytes:
+def pack_points(points: np.ndarray, encoding: str = "float32", step: float = 0.005, codec: str = "points") -> bytes:
+    """The body :func:`unpack_points` reads; ``ValueError`` for points it would refuse (beyond
+    :data:`lwbench.limits.MAX_COORDINATE`) and for a quantized extent 32 bits cannot hold."""
     pts = np.asarray(points, dtype=np.float32).reshape(-1, 3)
+    check_encodable(pts, codec)
     if encoding == "float32":
         return _HEAD.pack(0, len(pts)) + pts.astype("<f4").tobytes()
     if encoding != "quantized":
@@ -38,7 +41,13 @@ def pack_points(points: np.ndarray, encoding: str = "float32", step: float = 0.0
         raise ValueError(f"quantization step must be positive, got {step}")
     origin = pts.min(axis=0) if len(pts) else np.zeros(3, np.float32)
     q = np.rint((pts.astype(np.float64) - origin) / step)
-    width = 2 if (q.max() if len(q) else 0) < 2**16 else 4
+    top = q.max() if len(q) else 0
+    if top >= 2**32:  # would wrap around in 32 bits: a silently wrong cloud
+        raise ValueError(
+            f"{codec}: a quantized extent of {top * step:.6g} m at step {step:g} m needs more than 32 bits per "
+            "value; use a coarser quant_step or encoding=float32"
+        )
+    width = 2 if top < 2**16 else 4
     dtype = "<u2" if width == 2 else "<u4"
     return _HEAD.pack(1, len(pts)) + _QHEAD.pack(*origin.tolist(), step, width) + q.astype(dtype).tobytes()
 

@@ -172,10 +172,16 @@ class StreamWriter:
         blob = json.dumps(header.to_dict(), sort_keys=True, separators=(",", ":")).encode()
         self._fh.write(_HEAD.pack(MAGIC, FORMAT_VERSION, len(blob)) + blob + _LEN.pack(zlib.crc32(blob)))
 
+    def note_sensor(self, sensor: SensorModel) -> None:
+        """A sensor a payload names (the frame's, or one the encoder derived): its table travels
+        in the index, so that a fresh process decodes."""
+        if sensor.sensor_id not in self.header.sensors:
+            self._late_sensors.setdefault(sensor.sensor_id, sensor.to_dict(full=True))
+
     def add(self, payload: bytes, index: int, name: str, sensor: SensorModel | None = None,
             **origin: Any) -> FrameEntry:
-        if sensor is not None and sensor.sensor_id not in self.header.sensors:
-            self._late_sensors[sensor.sensor_id] = sensor.to_dict(full=True)
+        if sensor is not None:
+            self.note_sensor(sensor)
         self._fh.write(_LEN.pack(len(payload)))
         entry = FrameEntry(index, _unique_names(self.entries, _safe_stem(name)), len(payload), offset=self._fh.tell(),
                            **_origin_fields(origin))
@@ -208,10 +214,14 @@ class FolderWriter:
         self.header = header
         self.entries: list[FrameEntry] = []
 
+    def note_sensor(self, sensor: SensorModel) -> None:
+        """A sensor a payload names: its table goes into ``stream.json``."""
+        self.header.sensors.setdefault(sensor.sensor_id, sensor.to_dict(full=True))
+
     def add(self, payload: bytes, index: int, name: str, sensor: SensorModel | None = None,
             **origin: Any) -> FrameEntry:
         if sensor is not None:
-            self.header.sensors.setdefault(sensor.sensor_id, sensor.to_dict(full=True))
+            self.note_sensor(sensor)
         name = _unique_names(self.entries, _safe_stem(name))
         file = f"{name}{PAYLOAD_SUFFIX}"
         (self.path / file).write_bytes(payload)

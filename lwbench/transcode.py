@@ -121,6 +121,8 @@ def encode_dataset(
                 raise LwbenchError(f"{config.name}: encode returned {type(payload).__name__}, not bytes")
             origin = dict(dataset.frame_origin(i))
             name = str(origin.pop("name", f"{i:06d}"))
+            for named in encoder.sensors:  # tables the encoder derived (a grid, a widened range)
+                writer.note_sensor(named)
             writer.add(bytes(payload), i, name, sensor=frame.sensor, **origin)
             summary.frames += 1
             summary.payload_bytes += len(payload)

@@ -131,8 +131,11 @@ def test_the_shared_point_serializer_refuses_coordinates_no_lidar_returns():
     (float32 or quantized with a huge step) is a PayloadError, not a cloud."""
     from lwbench import PayloadError, pack_points, unpack_points
 
-    with pytest.raises(PayloadError, match="farther than"):
-        unpack_points(pack_points(np.array([[1e30, 0.0, 0.0]], np.float32)), "random")
+    far = np.array([[1e30, 0.0, 0.0]], np.float32)
+    with pytest.raises(ValueError, match="farther than 10000 m"):  # the encoder never writes it ...
+        pack_points(far)
+    with pytest.raises(PayloadError, match="farther than"):  # ... and a crafted body is refused
+        unpack_points(struct.pack("<BI", 0, 1) + far.astype("<f4").tobytes(), "random")
     body = bytearray(pack_points(np.array([[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]], np.float32), "quantized", 0.005))
     struct.pack_into("<f", body, 5 + 12, 1e30)  # the quantization step
     with pytest.raises(PayloadError, match="farther than"):

@@ -37,10 +37,17 @@ def fuzz_frames():
     return [room, ring, three, one]
 
 
+#: Tables the seed payloads' encoders named (a derived grid, a sensor=derived variant), by id.
+_ENCODED_SENSORS: dict[str, dict] = {}
+
+
 def fuzz_sensors() -> list[dict]:
-    """The full tables of :func:`fuzz_frames`' sensors: what a decode server is told, since seed
-    payloads name their (derived) sensors by id."""
-    return [s.to_dict(full=True) for s in {f.sensor.sensor_id: f.sensor for f in fuzz_frames()}.values()]
+    """The full tables of :func:`fuzz_frames`' sensors and of every sensor a seed payload's
+    encoder named: what a decode server is told, since seed payloads name their (derived)
+    sensors by id -- a case naming one the server was not told is refused before any of the
+    decoder's own code runs, which fuzzes nothing."""
+    frames = {f.sensor.sensor_id: f.sensor.to_dict(full=True) for f in fuzz_frames()}
+    return list({**frames, **_ENCODED_SENSORS}.values())
 
 
 def parameter_variants(codec_cls, params: dict) -> list[dict]:
@@ -74,10 +81,12 @@ def _encode_seeds(codec_cls, params: dict | None, frames, limit: int) -> list[tu
     out = []
     for variant in parameter_variants(codec_cls, dict(params or {})):
         for frame in frames:
+            encoder = codec_cls(**variant)
             try:
-                out.append((variant, codec_cls(**variant).encode(frame)))
+                out.append((variant, encoder.encode(frame)))
             except Exception:  # noqa: BLE001, S112 - a variant a scan does not support
                 continue
+            _ENCODED_SENSORS.update({s.sensor_id: s.to_dict(full=True) for s in encoder.sensors})
     rng = random.Random(0)
     rng.shuffle(out)
     return out[:limit]

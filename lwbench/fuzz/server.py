@@ -210,10 +210,12 @@ class DecodeServer:
         if self._box is not None and self._box.alive:
             self._box.call(("sensors", self._sensors), 120.0)
 
-    def decode(self, ref: str, params: dict, data: bytes, warm_with: bytes | None = None) -> Outcome:
+    def decode(self, ref: str, params: dict, data: bytes, warm_with: bytes | None = None, *,
+               judged_by: bytes | None = None) -> Outcome:
         """Decode the case ``data`` with ``ref(**params)``; ``warm_with`` is the valid payload it
         was made from (decoded once, unmeasured, to warm the decoder up; it also says whether the
-        codec's payloads name a sensor, see :func:`reach_of`)."""
+        codec's payloads name a sensor, see :func:`reach_of`). ``judged_by`` says the latter
+        without the warm-up (a regression case replayed alone: the case itself)."""
         if self._box is None or not self._box.alive:
             self._start()
         key = (ref, json.dumps(params, sort_keys=True, default=str))
@@ -223,7 +225,8 @@ class DecodeServer:
                 self._kill()
                 self._start()
             self._warm.add(key)
-        got = self._box.call(("decode", ref, params, data, False, warm_with), self.timeout_s)
+        seed = warm_with if judged_by is None else judged_by
+        got = self._box.call(("decode", ref, params, data, False, seed), self.timeout_s)
         if isinstance(got, tuple):
             return Outcome(got[0], got[1], got[2], got[3])
         code = self._kill()

@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 from lwbench_plugins.cloudini.v5 import MAX_VARINT_BYTES, read_body, write_body
 
+import lwbench
 from lwbench import Frame, Param, PayloadError, RepresentationCodec, check_count, checked_cloud, hookimpl
 
 __all__ = ["CloudiniCodec", "MIN_BITS_PER_POINT", "MAX_STAGE1_BYTES", "read_cloudini"]
@@ -79,6 +80,7 @@ class CloudiniCodec(RepresentationCodec):
                 f"cloudini: cannot send this scan at resolution {resolution}: {len(body)} bytes for "
                 f"{len(cloud)} points, below the decoder's {MIN_BITS_PER_POINT} bits per point"
             )
+        lwbench.check_encodable(frame.points, self.name, slack=np.sqrt(3.0) * resolution)  # what the decoder accepts
         meta: dict[str, Any] = {"n": len(cloud), "resolution": resolution, "fields": list(fields)}
         return self.make_payload(frame, meta, body)
 

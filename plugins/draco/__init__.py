@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+import lwbench
 from lwbench import Frame, Param, PayloadError, RepresentationCodec, check_count, checked_cloud, hookimpl
 
 __all__ = ["DracoCodec", "distinct_points", "quantization_step"]
@@ -118,6 +119,8 @@ class DracoCodec(RepresentationCodec):
                 )
             origin = ((lo + hi) / 2 - qrange / 2).tolist()
             kwargs = {"quantization_range": qrange, "quantization_origin": origin}
+        # Never write what the decoder refuses: every decoded point within reach, rounding included.
+        lwbench.check_encodable(pts, self.name, slack=np.sqrt(3.0) * quantization_step(pts, bits, qrange))
         body = DracoPy.encode(
             pts,
             quantization_bits=bits,

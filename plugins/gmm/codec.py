@@ -39,6 +39,7 @@ import numpy as np
 
 from lwbench import (
     DEVICE_PARAM,
+    MAX_COORDINATE,
     MAX_GENERATED_POINTS,
     Frame,
     Param,
@@ -64,6 +65,30 @@ _FLOATS_PER_COMPONENT = 10
 # Draws a decoder may be asked for: the body does not bound them (a 121-byte payload, K = 1,
 # asked for 2**26 points and passed 10 GB), so lwbench's budget for generated points does.
 _MAX_POINTS = MAX_GENERATED_POINTS
+# What one decode may cost, in (point, component) density evaluations (5-19 ns each through
+# mixture_log_prob's GEMM on one core of this project's 2-core machine at load 2.5-6): 2**25.
+# A draw (multinomial, normal, truncation, the 3x3 product) costs about as much as _DRAW_COST
+# evaluations (1.4 M draws took 0.78 s, 0.99 s re-projected onto an OS1-128, load 5.8), so a
+# header asking for at most this budget decodes in ~0.65 s of CPU at most: 838 k draws (samples=4
+# on a 124 k-point KITTI scan is 499 k), or e.g. 51 k draws under 100 + 100 components
+# (docs/gmm.md's free-space table).
+_MAX_DECODE_WORK = 1 << 25
+_DRAW_COST = 40
+
+
+def decode_work(n: int, k_occ: int, k_free: int) -> int:
+    """The evaluations a decode of ``n`` draws costs (free-space filtering scores every draw
+    under both mixtures): what :data:`_MAX_DECODE_WORK` bounds, on both sides of the link."""
+    return n * (_DRAW_COST + (k_occ + k_free if k_free else 0))
+
+
+def component_reach(rows: np.ndarray, truncate: float) -> float:
+    """The farthest from the sensor a truncated draw of these ``(K, 10)`` rows can land: a draw is
+    ``mu + L z`` with ``|z| <= truncate``, so within ``|mu| + truncate * ||L||_F`` (m)."""
+    if not len(rows):
+        return 0.0
+    rows = np.asarray(rows, dtype=np.float64)
+    return float((np.linalg.norm(rows[:, 1:4], axis=1) + truncate * np.linalg.norm(rows[:, 4:], axis=1)).max())
 
 
 @functools.cache
@@ -119,7 +144,9 @@ class GMMCodec(RepresentationCodec):
     """K-component Gaussian mixture of the scan, decoded by (truncated) sampling."""
 
     name = "gmm"
-    version = "1"
+    # 2: free-space filtering through one GEMM (log densities differ by < 2e-7, which may flip a
+    # draw on the boundary); decodes bounded to ~1 s of CPU
+    version = "2"
     description = "Gaussian mixture (K x 10 floats), decoded by 3-sigma sampling (VSGP paper's baseline)"
     supports_gpu = True
     params = (
@@ -184,8 +211,9 @@ class GMMCodec(RepresentationCodec):
             fit_pts = pts[np.sort(rng.choice(n, cfg["fit_points"], replace=False))]
         init_seed = int(rng.integers(2**31))
         k_occ = min(cfg["n_components"], len(fit_pts))
-        rows = [self._fit(fit_pts, k_occ, init_seed)] if k_occ else []
         k_free = min(cfg["free_components"], len(fit_pts))
+        self._check_work(n_draw, k_occ, k_free)  # before fitting: EM is the expensive part
+        rows = [self._fit(fit_pts, k_occ, init_seed)] if k_occ else []
         if k_free:
             import torch
 
@@ -197,11 +225,34 @@ class GMMCodec(RepresentationCodec):
         if cfg["dtype"] == "float16":
             tiny = np.finfo(np.float16).tiny
             params[:, [4, 6, 9]] = np.maximum(params[:, [4, 6, 9]], tiny)  # keep L's diagonal > 0
+        self._check_reach(params.astype(dt), k_occ)
         body = _HEAD.pack(dt_code, n_draw, k_occ, k_free) + params.astype(dt).tobytes()
         meta = {"truncate": cfg["truncate"], "seed": cfg["seed"], "reproject": cfg["reproject"]}
         if cfg["reproject"]:
             meta["sensor"] = self.sensor_meta(frame.sensor)
         return self.make_payload(frame, meta, body)
+
+    @staticmethod
+    def _check_work(n_draw: int, k_occ: int, k_free: int) -> None:
+        """``ValueError`` before writing a payload whose decode takes more work than a decoder accepts."""
+        work = decode_work(n_draw, k_occ, k_free)
+        if work > _MAX_DECODE_WORK:
+            raise ValueError(
+                f"gmm: {n_draw:,} draws{f' filtered by {k_occ + k_free} components' if k_free else ''} would take "
+                f"{work:,} evaluations to decode, more than the {_MAX_DECODE_WORK:,} a decoder accepts (lower "
+                "samples or free_components, or split the scan)"
+            )
+
+    def _check_reach(self, rows: np.ndarray, k_occ: int) -> None:
+        """``ValueError`` before writing a payload whose draws could land beyond any LiDAR's reach
+        (the decoder holds its draws to :data:`lwbench.MAX_COORDINATE` before re-projecting)."""
+        with np.errstate(over="ignore", invalid="ignore"):
+            reach = component_reach(rows[:k_occ], self.config["truncate"])
+        if not reach <= MAX_COORDINATE:
+            raise ValueError(
+                f"gmm: a component's {self.config['truncate']:g}-sigma draws reach {reach:.3g} m from the sensor, "
+                f"beyond the {MAX_COORDINATE:g} m a decoder accepts (the scan holds points no LiDAR returns: crop them)"
+            )
 
     # -- decode ------------------------------------------------------------------------------
     def mixtures(self, data: bytes) -> tuple[tuple[torch.Tensor, ...], tuple[torch.Tensor, ...] | None, int]:
@@ -219,15 +270,17 @@ class GMMCodec(RepresentationCodec):
         if dt is None:
             raise PayloadError(f"gmm payload: unknown dtype code {code}")
         per = _FLOATS_PER_COMPONENT * dt.itemsize
-        k_all = check_count(k_occ + k_free, "component count", codec="gmm", body=len(body) - _HEAD.size,
-                            bytes_each=per, exact=True)
+        check_count(k_occ + k_free, "component count", codec="gmm", body=len(body) - _HEAD.size,
+                    bytes_each=per, exact=True)
         n = check_count(n, "points to draw", codec="gmm", limit=_MAX_POINTS)
         if n > 0 and k_occ == 0:
             raise PayloadError(f"gmm payload: {n} points from {k_occ} components is not decodable")
-        if k_free:  # every draw is scored under both mixtures
-            check_work(n * k_all, "free-space filtering (points x components)", codec="gmm")
+        # Drawing, and scoring every draw under both mixtures when there is a free-space one.
+        check_work(decode_work(n, k_occ, k_free), "drawing (and free-space filtering)", codec="gmm",
+                   limit=_MAX_DECODE_WORK)
         rows = np.frombuffer(body, dtype=dt, offset=_HEAD.size).reshape(-1, _FLOATS_PER_COMPONENT)
-        rows = rows.astype(np.float64)
+        with np.errstate(invalid="ignore", over="ignore"):  # NaN/inf patterns are refused by _unpack
+            rows = rows.astype(np.float64)
         free = _unpack(rows[k_occ:]) if k_free else None
         return _unpack(rows[:k_occ]), free, n
 
@@ -248,10 +301,13 @@ class GMMCodec(RepresentationCodec):
         if free is not None:
             x = x[mixture_log_prob(w, mu, chol, x) >= mixture_log_prob(*free, x)]
         # A payload that names its sensor is held to its reach (huge means or factors would put
-        # points kilometres away, or overflow float32); one that does not, to any LiDAR's.
+        # points kilometres away, or overflow float32); one that does not, to any LiDAR's. Draws
+        # that are re-projected are held to any LiDAR's first: re-projection keeps only those
+        # within the sensor's range window (a scan's returns beyond its sensor's max range are
+        # modelled too -- the encoder wrote them, so the decoder must not refuse their draws).
         sensor = self.read_sensor(payload) if reproject or "sensor" in payload.meta else None
         max_range = None if sensor is None else sensor.max_range
-        pts = checked_cloud(x.numpy(), self.name, max_range=max_range)
+        pts = checked_cloud(x.numpy(), self.name, max_range=None if reproject else max_range)
         if reproject:
             pts = sensor.unproject(sensor.project(pts).ranges)
         return checked_cloud(pts, self.name, max_range=max_range)

@@ -499,21 +499,40 @@ def _moments_from_labels(Xc: torch.Tensor, labels: torch.Tensor, k: int, reg: fl
 
 
 def mixture_log_prob(
-    weights: torch.Tensor, means: torch.Tensor, chol: torch.Tensor, X: torch.Tensor, chunk: int = 4096
+    weights: torch.Tensor, means: torch.Tensor, chol: torch.Tensor, X: torch.Tensor, chunk_cells: int = 1 << 16
 ) -> torch.Tensor:
     """Log density ``(N,)`` of points under a mixture given by its parameters (float64).
 
-    Used on decoded parameters, where there is no fitted estimator; differences are taken
-    before the triangular solve, as in the estimator's E-step.
+    Used on decoded parameters, where there is no fitted estimator. The Mahalanobis form of
+    every (point, component) pair is one matrix product: ``(x - mu)^T P (x - mu)`` expands to
+    nine quadratic and linear features of ``x`` times nine numbers per component (``P`` =
+    ``L^-T L^-1``), after centring both on the means' centroid to keep the expansion's
+    cancellation small (|error| < 2e-7 against the triangular solves on 50 m scenes). One GEMM
+    instead of a batched triangular solve per pair, over chunks of ``chunk_cells`` pairs that stay
+    in cache: 13-19 ns per pair against 63 (one core of this project's machine, load 2.5-6), so a
+    header's 2**25 pairs decode within a second.
     """
     X = X.double()
+    chol = chol.double()
+    if not len(X):
+        return torch.zeros(0, dtype=torch.float64, device=X.device)
+    centre = means.double().mean(0)
+    mu = means.double() - centre
     eye = torch.eye(3, dtype=torch.float64, device=chol.device).expand_as(chol)
-    linv = torch.linalg.solve_triangular(chol.double(), eye, upper=False)
+    linv = torch.linalg.solve_triangular(chol, eye, upper=False)
+    prec = linv.transpose(-1, -2) @ linv  # (K, 3, 3)
+    lin = (prec @ mu.unsqueeze(-1)).squeeze(-1)  # P mu
+    coef = torch.stack([prec[:, 0, 0], prec[:, 1, 1], prec[:, 2, 2], 2 * prec[:, 0, 1], 2 * prec[:, 0, 2],
+                        2 * prec[:, 1, 2], -2 * lin[:, 0], -2 * lin[:, 1], -2 * lin[:, 2]], dim=1)  # (K, 9)
+    offset = (mu * lin).sum(-1)  # mu^T P mu
     logw = torch.log(weights.double() / weights.double().sum())
-    const = logw - 1.5 * _LOG_2PI - torch.log(torch.diagonal(chol.double(), dim1=-2, dim2=-1)).sum(-1)
+    const = logw - 1.5 * _LOG_2PI - torch.log(torch.diagonal(chol, dim1=-2, dim2=-1)).sum(-1)
+    rows = max(1, chunk_cells // max(1, len(mu)))
     out = []
-    for s in range(0, len(X), chunk):
-        d = X[s : s + chunk].T.unsqueeze(0) - means.double().unsqueeze(-1)
-        y = torch.matmul(linv, d)
-        out.append(torch.logsumexp(const.unsqueeze(-1) - 0.5 * (y * y).sum(1), dim=0))
-    return torch.cat(out) if out else torch.zeros(0, dtype=torch.float64, device=X.device)
+    for s in range(0, len(X), rows):
+        x = X[s : s + rows] - centre
+        feats = torch.stack([x[:, 0] ** 2, x[:, 1] ** 2, x[:, 2] ** 2, x[:, 0] * x[:, 1], x[:, 0] * x[:, 2],
+                             x[:, 1] * x[:, 2], x[:, 0], x[:, 1], x[:, 2]], dim=1)
+        quad = (feats @ coef.T + offset).clamp_min(0)  # rounding may dip a little below 0
+        out.append(torch.logsumexp(const - 0.5 * quad, dim=1))
+    return torch.cat(out)

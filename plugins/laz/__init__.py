@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+import lwbench
 from lwbench import Frame, Param, PayloadError, RepresentationCodec, check_count, checked_cloud, hookimpl
 
 __all__ = ["LazCodec", "check_las", "read_laz", "MIN_BITS_PER_POINT"]
@@ -199,6 +200,7 @@ class LazCodec(RepresentationCodec):
             check_las(body, len(pts), self.name)
         except PayloadError as exc:  # never write what the decoder refuses
             raise ValueError(f"laz: cannot send this scan at scale {scale}: {exc}") from None
+        lwbench.check_encodable(pts, self.name, slack=np.sqrt(3.0) * scale)  # what read_laz accepts
         return self.make_payload(frame, meta, body)
 
     def decode(self, data: bytes) -> np.ndarray:

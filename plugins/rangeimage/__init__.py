@@ -77,10 +77,13 @@ _REFINE = ("beam", "none")
 #: original's -- below float32's resolution of a direction (6e-8 relative).
 LOSSLESS_DIRECTION_RAD = 2.0**-24
 #: A payload holds at most this many returns per grid cell on average, and at most
-#: :data:`MAX_RETURNS` in all (16x an OS1-128 at 2,048 columns): what one sweep of a real sensor
+#: :data:`MAX_RETURNS` in all (8x an OS1-128 at 2,048 columns): what one sweep of a real sensor
 #: has, with room. The encoder refuses a scan beyond either (an accumulated map is not a sweep).
+#: 2**21, not 2**22: a header asking for 4 Mi returns on a 4 Mi-cell grid took 0.56-1.17 s of
+#: CPU to decode (zstd / png / jpegxl / zfp bodies, load 4.5-4.9); 2 Mi returns on that grid take
+#: 0.29-0.42 s -- within the second of CPU a decode may take (docs/hostile.md).
 RETURNS_PER_CELL = 2
-MAX_RETURNS = 1 << 22
+MAX_RETURNS = 1 << 21
 
 
 class RangeImageCodec(RepresentationCodec):
@@ -212,7 +215,8 @@ class RangeImageCodec(RepresentationCodec):
         layers, q, ranges = self._decode(data)
         dirs, _ = directions(layers, q)
         points = np.concatenate([dirs * ranges[:, None], layers.exceptions.astype(np.float64)])
-        return checked_cloud(points, self.name, max_range=self._reach_field(data))
+        reach = self._reach_field(data)
+        return checked_cloud(points, self.name, max_range=layers.grid.sensor.max_range if reach is None else reach)
 
     def _reach_field(self, data: bytes) -> float | None:
         """The farthest return the encoder saw (``reach_m``, never below its sensor's max range):
@@ -220,7 +224,10 @@ class RangeImageCodec(RepresentationCodec):
         (a real Ouster sees past its preset's 120 m), so the sensor's reach alone is not the bound."""
         reach = self.read_payload(data).meta.get("reach_m")
         if reach is None:
-            return None  # an early version-4 payload: the ceiling (lwbench.MAX_COORDINATE) only
+            # An early version-4 payload, or a crafted one that dropped the field: its sensor's reach
+            # (not the 10 km ceiling -- the independent fuzzer's dropped key decoded 3.7 km for a
+            # 120 m sensor that way).
+            return None
         if not isinstance(reach, (int, float)) or isinstance(reach, bool) or not 0 < reach <= MAX_COORDINATE:
             raise PayloadError(f"rangeimage payload: reach_m {reach!r} outside (0, {MAX_COORDINATE:g}] m")
         return float(reach)

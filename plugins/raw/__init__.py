@@ -15,7 +15,7 @@ class RawCodec(RepresentationCodec):
     description = "lossless float32 x,y,z (the reference)"
 
     def encode(self, frame: Frame) -> bytes:
-        return self.make_payload(frame, {}, pack_points(frame.points, "float32"))
+        return self.make_payload(frame, {}, pack_points(frame.points, "float32", codec=self.name))
 
     def decode(self, data: bytes) -> np.ndarray:
         return unpack_points(self.read_payload(data).body, self.name)
