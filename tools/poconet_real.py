@@ -8,7 +8,8 @@ network predicts for the whole scan and for the kept points (high priority / gro
 where the kept points are against a random selection of the same size -- their range, their
 height above the scan's lowest decile, and the share on the ground plane RANSAC finds (the
 labels' own ground rule, :func:`ground_mask`). ``--png`` writes a top-down picture of each scan
-with the kept points coloured by predicted class.
+with the kept points coloured by predicted class. The last column is the heading check: mean
+P(high) on either side of the sensor and within / beyond 8 m sideways.
 """
 
 from __future__ import annotations
@@ -37,6 +38,19 @@ def describe(points: np.ndarray, keep: np.ndarray, ground_mask: np.ndarray) -> d
         "height_m": float(np.median(kept[:, 2] - floor)),
         "ground": float(ground_mask[keep].mean()),
     }
+
+
+def lateral_bias(points: np.ndarray, p_high: np.ndarray, cls: np.ndarray) -> tuple[float, float, float, float]:
+    """Mean P(high) of the non-ground points left (y > 0) and right of the sensor, and within /
+    beyond 8 m sideways: a network that learned where the simulated street's façades lie
+    (always on one side, at fixed offsets) shows it here on a real street."""
+    rest = cls != 2
+    y, p = points[rest, 1], p_high[rest]
+
+    def mean(m: np.ndarray) -> float:
+        return float(p[m].mean()) if m.any() else float("nan")
+
+    return mean(y > 0), mean(y < 0), mean(np.abs(y) < 8), mean(np.abs(y) >= 8)
 
 
 def top_down(path: Path, points: np.ndarray, keep: np.ndarray, cls: np.ndarray, title: str) -> None:
@@ -73,8 +87,9 @@ def main() -> None:
     reg = get_registry()
     print(f"budget {args.ratio:.4f} of every scan; shares: predicted class of the whole scan / of the kept points")
     print("| scan | points | budget | kept | predicted " + " / ".join(CLASSES) + " (scan) | kept "
-          + " / ".join(CLASSES) + " | kept: median range, height, on ground | random: same |")
-    print("|---|---|---|---|---|---|---|---|")
+          + " / ".join(CLASSES) + " | kept: median range, height, on ground | random: same | "
+          "mean P(high), non-ground: left / right, abs(y) < 8 m / > 8 m |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for folder in folders:
         frame = resolve_dataset(reg, str(folder), {}, 0).build(reg)[0]
         sel = reg.codec("poconet")(ratio=args.ratio, weights=args.weights)
@@ -90,9 +105,11 @@ def main() -> None:
         def fmt(d: dict[str, float]) -> str:
             return f"{d['range_m']:.1f} m, {d['height_m']:.2f} m, {d['ground']:.0%}"
 
+        side = lateral_bias(frame.points, probs[:, 1], cls)
         print(f"| {folder.name} | {len(frame):,} | {sel.budget(len(frame)):,} | {len(keep):,} | "
               + " / ".join(f"{s:.1%}" for s in scan_share) + " | "
-              + " / ".join(f"{s:.1%}" for s in kept_share) + f" | {fmt(ours)} | {fmt(theirs)} |")
+              + " / ".join(f"{s:.1%}" for s in kept_share) + f" | {fmt(ours)} | {fmt(theirs)} | "
+              + " / ".join(f"{v:.3f}" for v in side) + " |")
         if args.png:
             args.png.mkdir(parents=True, exist_ok=True)
             top_down(args.png / f"poconet_{folder.name}.png", frame.points, keep, cls,
