@@ -120,16 +120,7 @@ class PocoNetSelector(SelectionCodec):
         return str(SHIPPED_WEIGHTS if w == "shipped" else Path(w).expanduser())
 
     def probabilities(self, frame: Frame) -> np.ndarray:
-        """``(N, 3)`` class probabilities of every point of the scan (low, high, ground); the
-        last scan's are kept, so ``scores`` and ``select`` of one scan run the network once."""
-        memo = getattr(self, "_memo", None)
-        if memo is not None and memo[0] is frame.points and memo[1] == frame.index:
-            return memo[2]
-        probs = self._probabilities(frame)
-        self._memo = (frame.points, frame.index, probs)
-        return probs
-
-    def _probabilities(self, frame: Frame) -> np.ndarray:
+        """``(N, 3)`` class probabilities of every point of the scan (low, high, ground)."""
         import torch
         from scipy.spatial import cKDTree
 
@@ -154,7 +145,11 @@ class PocoNetSelector(SelectionCodec):
         return probs[nearest]
 
     def scores(self, frame: Frame) -> np.ndarray:
-        """Per point the probability of high priority (what ``lwbench diagnose`` ranks)."""
+        """Per point the probability of high priority (what ``lwbench diagnose`` ranks). Right
+        after :meth:`select` of the same scan, the probabilities it computed (no second pass)."""
+        memo = getattr(self, "_last", None)
+        if memo is not None and memo[0] is frame.points and memo[1] == frame.index:
+            return memo[2][:, HIGH]
         return self.probabilities(frame)[:, HIGH]
 
     def select(self, frame: Frame) -> np.ndarray:
@@ -162,6 +157,7 @@ class PocoNetSelector(SelectionCodec):
         if k == 0 or len(frame) == 0:
             return np.empty(0, dtype=np.int64)
         probs = self.probabilities(frame)
+        self._last = (frame.points, frame.index, probs)
         rng = np.random.default_rng([self.config["seed"], frame.index, 1])
         score = probs[:, HIGH] if self.config["score"] == "p_high" else rng.random(len(frame))
         return select_by_score(frame.points, probs.argmax(axis=1), score, k, rng,

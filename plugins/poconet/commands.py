@@ -71,6 +71,8 @@ def register(cli: typer.Typer) -> None:
         budget_minutes: Annotated[float | None, typer.Option(help="Stop after this much training time.")] = None,
         device: Annotated[str, typer.Option(help="auto, cpu, cuda, cuda:N")] = "auto",
         threads: Annotated[int, typer.Option(help="Torch threads on the CPU.", min=1)] = 1,
+        var_weight: Annotated[float, typer.Option(help="Weight of the codeword's variance term (0: the paper's "
+                                                  "loss alone).", min=0)] = 1.0,
         export_to: Annotated[Path | None, typer.Option("--export", help="Also write the weights-only file here.")]
         = None,
     ) -> None:
@@ -82,7 +84,8 @@ def register(cli: typer.Typer) -> None:
         cfg = TrainConfig(
             out=str(out), epochs=epochs, drives=parse_drives(drives), val_drives=parse_drives(val_drives),
             frames=frames, margin=margin, counts_from=counts_from, sample=sample, crop=crop, heading=heading,
-            device=device, threads=threads, time_budget_s=None if budget_minutes is None else 60 * budget_minutes,
+            device=device, threads=threads, var_weight=var_weight,
+            time_budget_s=None if budget_minutes is None else 60 * budget_minutes,
         )
         with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
                       TimeElapsedColumn()) as bar:

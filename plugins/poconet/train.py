@@ -19,7 +19,9 @@
   on (counts accumulate along the path); ``heading="full"`` is the first checkpoint's random yaw.
 - **Loss** (the paper's): one binary cross-entropy per class plus ``lam`` times the codewords'
   squared L2 distance (:func:`~.network.siamese_loss`), on a normalized codeword
-  (:class:`~.network.GlobalFeatureAttention` says why); Adam, lr ``1e-3`` decayed 5 % per epoch.
+  (:class:`~.network.GlobalFeatureAttention` says why), plus ``var_weight`` times VICReg's
+  variance term against the last ``var_bank`` scans' codewords (:func:`~.network.variance_loss`
+  has the measured reason); Adam, lr ``1e-3`` decayed 5 % per epoch.
 - **Threads**: ``threads`` torch threads (default 1): on this shared 2-core CPU one
   forward+backward of a siamese pair took 0.67 s on one thread and 5.9 s on two while other jobs
   ran (two threads wait on each other when a core is taken).
@@ -48,7 +50,7 @@ from lwbench.selector_diagnostics import GROUND, HIGH, roc_auc, top_k_precision
 from .codec import CHECKPOINT_FORMAT
 from .data import crop, features, prepare, to_torch
 from .labels import CLASSES, COUNTS_FROM, LabelSettings, LabelStore, label_dataset
-from .network import NetConfig, PocoNet, siamese_loss
+from .network import NetConfig, PocoNet, siamese_loss, variance_loss
 
 __all__ = ["TrainConfig", "train", "export", "evaluate_scans", "gfa_ablation", "parse_drives", "SIM_PROTOCOL"]
 
@@ -75,6 +77,8 @@ class TrainConfig:
     lr: float = 1e-3
     decay: float = 0.95
     lam: float = 1.0
+    var_weight: float = 1.0  # VICReg's variance term on the codeword (0: the paper's loss alone)
+    var_bank: int = 32  # recent scans' codewords it measures the spread against
     binary: bool = True  # the paper's binary cross-entropy (False: the 3-class weighted one)
     intensity_dropout: float = 0.5
     heading: str = "jitter"  # "jitter": mirror + yaw jitter; "full": any yaw + mirror; "none"
@@ -292,7 +296,7 @@ def train(cfg: TrainConfig, progress: Callable[[str, int, int], None] | None = N
     for epoch in range(start_epoch, cfg.epochs):
         rng = np.random.default_rng([cfg.seed, epoch])
         order = rng.permutation(len(samples))
-        losses = []
+        losses, bank = [], []
         for step, k in enumerate(order):
             if cfg.time_budget_s is not None and time.perf_counter() - t_start > cfg.time_budget_s:
                 break
@@ -311,6 +315,11 @@ def train(cfg: TrainConfig, progress: Callable[[str, int, int], None] | None = N
             (l1, c1), (l2, c2) = (_forward(net, pts, feats, device, rng) for _ in range(2))
             target = torch.as_tensor(lab.astype(np.int64), device=device).unsqueeze(0)
             loss, parts = siamese_loss((l1, l2), (c1, c2), target, weights, cfg.lam, binary=cfg.binary)
+            if cfg.var_weight > 0:
+                l_var = variance_loss(c1, bank)
+                loss = loss + cfg.var_weight * l_var
+                parts["variance"] = float(l_var.detach())
+                bank = [c1.detach(), *bank][: cfg.var_bank]
             opt.zero_grad()
             loss.backward()
             opt.step()
@@ -324,7 +333,8 @@ def train(cfg: TrainConfig, progress: Callable[[str, int, int], None] | None = N
             "elapsed_s": time.perf_counter() - t_start,
             "labels_s": labels_s,
             "lr": opt.param_groups[0]["lr"],
-            **{k: float(np.mean([p[k] for p in losses])) if losses else math.nan for k in ("loss", "label", "global")},
+            **{k: float(np.mean([p.get(k, math.nan) for p in losses])) if losses else math.nan
+               for k in ("loss", "label", "global", "variance")},
             **evaluate_scans(net, val, device),
             **gfa_ablation(net, val, device),
         }
