@@ -115,6 +115,9 @@ def table(rows: list[dict], seeds: list[int]) -> str:
     for r in rows:
         if "ate_rmse" in r:
             ate.setdefault(r["row"], {})[r["seed"]] = r
+    order = ["raw", "random", "harris3d", "iss", "sift3d", "poconet", "poconet, score=random (control)",
+             "poconet, cell=0 (no balance)", "oracle (mapping)", "oracle (all)"]
+    ate = dict(sorted(ate.items(), key=lambda kv: (order.index(kv[0]) if kv[0] in order else len(order), kv[0])))
     rnd = ate.get("random", {})
     head = " / ".join(str(s) for s in seeds)
     lines = [f"| method | ATE rmse (cm), seeds {head} | mean ± std | − random, per seed (cm) | beats random | "
@@ -133,6 +136,14 @@ def table(rows: list[dict], seeds: list[int]) -> str:
             + ("–" if name == "random" else " / ".join("–" if d is None else f"{100 * d:+.2f}" for d in diffs))
             + f" | {'–' if name == 'random' else f'{wins}/{len(have)}'} | {rot:.4f} | {mp:,.0f} | {share:.4f} |"
         )
+    means = {n: np.mean([r["ate_rmse"] for r in per.values()]) for n, per in ate.items()}
+    stds = {n: np.std([r["ate_rmse"] for r in per.values()]) for n, per in ate.items()}
+    keypoints = [n for n in ("harris3d", "iss", "sift3d") if n in means]
+    if keypoints and "poconet" in means:
+        best = min(keypoints, key=means.get)
+        inside = abs(means["poconet"] - means[best]) <= stds[best]
+        lines += ["", f"Best keypoint selector: {best} ({100 * means[best]:.2f} ± {100 * stds[best]:.2f} cm); poconet "
+                  f"({100 * means['poconet']:.2f} cm) is {'within' if inside else 'outside'} its spread."]
     diag = [r for r in rows if r["row"] == "poconet diagnostics"]
     if diag:
         lines += ["", "| poconet vs labels | base rate | AUC | top-k precision | kept precision | kept ground share |",
@@ -162,7 +173,7 @@ def main() -> None:
     args.work.mkdir(parents=True, exist_ok=True)
     everything = {}
     for ratio in args.ratios:
-        curve = not args.no_curve and any(abs(ratio - c) < 1e-9 for c in args.curve_ratios)
+        curve = not args.no_curve and any(abs(ratio - c) < 1e-3 for c in args.curve_ratios)
         rows = [r for seed in args.seeds for r in one_seed(args, seed, ratio, curve)]
         everything[f"{ratio:.4f}"] = rows
         print(f"\n### sim {args.scene}, sensor {args.sensor}, budget {ratio:.4f} of every scan (raw keeps all); "

@@ -72,7 +72,7 @@ def register(cli: typer.Typer) -> None:
         device: Annotated[str, typer.Option(help="auto, cpu, cuda, cuda:N")] = "auto",
         threads: Annotated[int, typer.Option(help="Torch threads on the CPU.", min=1)] = 1,
         var_weight: Annotated[float, typer.Option(help="Weight of the codeword's variance term (0: the paper's "
-                                                  "loss alone).", min=0)] = 1.0,
+                                                  "loss alone).", min=0)] = 0.0,
         export_to: Annotated[Path | None, typer.Option("--export", help="Also write the weights-only file here.")]
         = None,
     ) -> None:
