@@ -305,6 +305,8 @@ def train(cfg: TrainConfig, progress: Callable[[str, int, int], None] | None = N
         opt.load_state_dict(state["optimizer"])
         sched.load_state_dict(state["scheduler"])
         start_epoch, elapsed = int(state["epoch"]), float(state["elapsed_s"])
+        if "torch_rng" in state:  # dropout goes on as if never stopped
+            torch.set_rng_state(state["torch_rng"].cpu())
     averaged = _Averaged(net, cfg.ema, state["model"] if last.exists() else None)
     (out / "config.json").write_text(json.dumps(asdict(cfg), indent=1))
 
@@ -376,6 +378,7 @@ def train(cfg: TrainConfig, progress: Callable[[str, int, int], None] | None = N
             "config": net_cfg.as_dict(),
             "model": averaged.model.state_dict(),
             "raw_model": net.state_dict(),
+            "torch_rng": torch.get_rng_state(),
             "optimizer": opt.state_dict(),
             "scheduler": sched.state_dict(),
             "epoch": epoch + 1,
