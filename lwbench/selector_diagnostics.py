@@ -44,6 +44,9 @@ from lwbench.frame import Frame
 from lwbench.metric import SequenceEvaluation, SequenceMetric
 
 __all__ = [
+    "LABEL_GROUND",
+    "LABEL_HIGH",
+    "LABEL_LOW",
     "LOW",
     "HIGH",
     "GROUND",
@@ -64,6 +67,8 @@ __all__ = [
 ]
 
 LOW, HIGH, GROUND = 0, 1, 2
+# The same class codes under the names the public API (``lwbench``) exports them by.
+LABEL_LOW, LABEL_HIGH, LABEL_GROUND = LOW, HIGH, GROUND
 
 
 class LabelFolder:
@@ -90,8 +95,10 @@ class LabelFolder:
         if expected is None:
             raise DataFormatError(f"{self.root}: no labels for frame {index}")
         if expected != n_points:
-            raise DataFormatError(f"{self.root}: labels of frame {index} are for {expected} points, "
-                                  f"the scan has {n_points} (labels of another dataset?)")
+            raise DataFormatError(
+                f"{self.root}: labels of frame {index} are for {expected} points, "
+                f"the scan has {n_points} (labels of another dataset?)"
+            )
         path = self.root / "labels" / f"{index:06d}.label"
         lab = np.fromfile(path, dtype=np.uint8) if path.is_file() else np.empty(0, np.uint8)
         if len(lab) != n_points or lab.max(initial=0) > GROUND:
@@ -186,8 +193,15 @@ def balanced_order(points: np.ndarray, scores: np.ndarray, cell: float, rng: np.
     return shuffle[np.lexsort((-s[shuffle], rank))]
 
 
-def select_by_score(points: np.ndarray, classes: np.ndarray, scores: np.ndarray, k: int, rng: np.random.Generator,
-                    ground_share: float = 0.1, cell: float = 3.0) -> np.ndarray:
+def select_by_score(
+    points: np.ndarray,
+    classes: np.ndarray,
+    scores: np.ndarray,
+    k: int,
+    rng: np.random.Generator,
+    ground_share: float = 0.1,
+    cell: float = 3.0,
+) -> np.ndarray:
     """A learned selector's budget rule: exactly ``k`` indices, ``ground_share`` of them from the
     points classed ground (at random: the ground's points are alike), the rest from the other
     points in the :func:`balanced_order` of ``scores``, topped up from ground if those run out."""
@@ -215,8 +229,12 @@ class FrameDiagnostics:
     auc: float = float("nan")  # this frame's ROC AUC (the summary averages over frames)
 
     def add(self, other: FrameDiagnostics) -> FrameDiagnostics:
-        out = FrameDiagnostics(**{k: getattr(self, k) + getattr(other, k) for k in
-                                  ("high", "low", "kept_high", "kept_low", "kept_ground", "top_k_hits", "top_k")})
+        out = FrameDiagnostics(
+            **{
+                k: getattr(self, k) + getattr(other, k)
+                for k in ("high", "low", "kept_high", "kept_low", "kept_ground", "top_k_hits", "top_k")
+            }
+        )
         return out
 
 
@@ -225,8 +243,11 @@ def frame_diagnostics(classes: np.ndarray, kept: np.ndarray, scores: np.ndarray 
     c = np.asarray(classes)
     kc = c[np.asarray(kept, dtype=np.int64)]
     d = FrameDiagnostics(
-        high=int((c == HIGH).sum()), low=int((c == LOW).sum()), kept_high=int((kc == HIGH).sum()),
-        kept_low=int((kc == LOW).sum()), kept_ground=int((kc == GROUND).sum()),
+        high=int((c == HIGH).sum()),
+        low=int((c == LOW).sum()),
+        kept_high=int((kc == HIGH).sum()),
+        kept_low=int((kc == LOW).sum()),
+        kept_ground=int((kc == GROUND).sum()),
     )
     if scores is not None:
         rest = c != GROUND
@@ -299,8 +320,9 @@ def noisy_oracle_curve(
             else:
                 keep = select_by_score(f.points, noisy, (noisy == HIGH).astype(np.float64), k, rng, ground_share, cell)
             decoded.append(np.asarray(f.points[keep], dtype=np.float32))
-        seq = SequenceEvaluation(dataset, list(frame_indices), decoded, "noisy-oracle",
-                                 {"precision": p, "rule": rule}, seed, _cache=shared)
+        seq = SequenceEvaluation(
+            dataset, list(frame_indices), decoded, "noisy-oracle", {"precision": p, "rule": rule}, seed, _cache=shared
+        )
         out.append(CurvePoint(float(p), metric.compute(seq)))
     return out
 

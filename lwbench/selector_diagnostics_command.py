@@ -79,8 +79,13 @@ def diagnose_selector(
         scores = scorer(f) if callable(scorer) else None
         for name, folder in labels.items():
             per[name].append(frame_diagnostics(folder.classes(i, len(f)), kept, scores))
-    out: dict[str, Any] = {"codec": codec.name, "params": codec.config, "dataset": dataset.identity(),
-                           "frames": len(idx), "labels": {n: summarize(v) for n, v in per.items()}}
+    out: dict[str, Any] = {
+        "codec": codec.name,
+        "params": codec.config,
+        "dataset": dataset.identity(),
+        "frames": len(idx),
+        "labels": {n: summarize(v) for n, v in per.items()},
+    }
     if curve_labels is None:
         return out
     folder = labels[curve_labels]
@@ -95,11 +100,28 @@ def diagnose_selector(
     ps = sorted({round(base, 4), *(p for p in precisions if p > base)})
     cell = float(codec.config.get("cell", 3.0)) if cell is None else cell
     key = "ate_rmse"
-    out["curve"] = {"labels": curve_labels, "ground_share": ground_share, "cell": cell, "selector": own,
-                    "random": ref, "rules": {}}
+    out["curve"] = {
+        "labels": curve_labels,
+        "ground_share": ground_share,
+        "cell": cell,
+        "selector": own,
+        "random": ref,
+        "rules": {},
+    }
     for rule in rules:
-        curve = noisy_oracle_curve(dataset, idx, lambda f: folder.classes(f.index, len(f)), codec.budget, ps,
-                                   metric, ground_share, seed, cache, rule, cell)
+        curve = noisy_oracle_curve(
+            dataset,
+            idx,
+            lambda f: folder.classes(f.index, len(f)),
+            codec.budget,
+            ps,
+            metric,
+            ground_share,
+            seed,
+            cache,
+            rule,
+            cell,
+        )
         pairs = [(c.precision, c.values[key]) for c in curve if c.values.get(key) is not None]
         out["curve"]["rules"][rule] = {
             "points": [{"precision": c.precision, **c.values} for c in curve],
@@ -113,28 +135,38 @@ def _print(result: dict[str, Any]) -> None:
     print("| labels | base rate | AUC | top-k precision | kept precision | kept ground share |")
     print("|---|---|---|---|---|---|")
     for name, s in result["labels"].items():
-        print(f"| {name} | {s['base_rate']:.3f} | {s['auc']:.3f} | {s['top_k_precision']:.3f} | "
-              f"{s['kept_precision']:.3f} | {s['kept_ground_share']:.3f} |")
+        print(
+            f"| {name} | {s['base_rate']:.3f} | {s['auc']:.3f} | {s['top_k_precision']:.3f} | "
+            f"{s['kept_precision']:.3f} | {s['kept_ground_share']:.3f} |"
+        )
     curve = result.get("curve")
     if not curve:
         return
-    print(f"\nnoisy oracle on the {curve['labels']!r} labels (ground share {curve['ground_share']}; rule 'class': "
-          f"the oracle's, 'score': ranked with {curve['cell']} m spatial balance):\n")
+    print(
+        f"\nnoisy oracle on the {curve['labels']!r} labels (ground share {curve['ground_share']}; rule 'class': "
+        f"the oracle's, 'score': ranked with {curve['cell']} m spatial balance):\n"
+    )
     print("| selection | precision | ATE rmse (m) | ATE mean (m) | rot error (deg) |")
     print("|---|---|---|---|---|")
     for rule, c in curve["rules"].items():
         for p in c["points"]:
-            print(f"| noisy oracle, rule {rule} | {p['precision']:.3f} | {p['ate_rmse']:.4f} | {p['ate_mean']:.4f} | "
-                  f"{p['rot_err_deg']:.4f} |")
+            print(
+                f"| noisy oracle, rule {rule} | {p['precision']:.3f} | {p['ate_rmse']:.4f} | {p['ate_mean']:.4f} | "
+                f"{p['rot_err_deg']:.4f} |"
+            )
     own, ref = curve["selector"], curve["random"]
     prec = result["labels"][curve["labels"]]["kept_precision"]
-    print(f"| {result['codec']} | {prec:.3f} (kept) | {own['ate_rmse']:.4f} | {own['ate_mean']:.4f} | "
-          f"{own['rot_err_deg']:.4f} |")
+    print(
+        f"| {result['codec']} | {prec:.3f} (kept) | {own['ate_rmse']:.4f} | {own['ate_mean']:.4f} | "
+        f"{own['rot_err_deg']:.4f} |"
+    )
     print(f"| random | – | {ref['ate_rmse']:.4f} | {ref['ate_mean']:.4f} | {ref['rot_err_deg']:.4f} |\n")
     for rule, c in curve["rules"].items():
         cross = c["beats_random_from"]
-        print(f"rule {rule}: the noisy oracle beats random from precision "
-              + (f"{cross:.3f}" if cross is not None else "– (not even at 1.0)"))
+        print(
+            f"rule {rule}: the noisy oracle beats random from precision "
+            + (f"{cross:.3f}" if cross is not None else "– (not even at 1.0)")
+        )
 
 
 @hookimpl
@@ -144,20 +176,29 @@ def lwbench_register_commands(cli) -> None:
     @cli.command("diagnose")
     def diagnose(
         codec: Annotated[str, typer.Argument(help="A selection codec (its scores are used if it has scores()).")],
-        labels: Annotated[list[str], typer.Option("--labels", help="NAME=DIR: a label folder from `lwbench label` "
-                                                  "(repeat for several definitions).")],
+        labels: Annotated[
+            list[str],
+            typer.Option(
+                "--labels", help="NAME=DIR: a label folder from `lwbench label` (repeat for several definitions)."
+            ),
+        ],
         param: Annotated[list[str], typer.Option("--param", help="KEY=VALUE of the codec.")] = [],  # noqa: B006
         dataset: Annotated[str | None, typer.Option(help="Registered dataset name or a path.")] = None,
         dataset_param: Annotated[list[str], typer.Option("--dataset-param", help="KEY=VALUE.")] = [],  # noqa: B006
         curve: Annotated[bool, typer.Option(help="Also the noisy-oracle curve (localization, slower).")] = False,
-        curve_labels: Annotated[str | None, typer.Option(help="Label definition of the curve (default: the "
-                                                         "first --labels).")] = None,
-        precision: Annotated[list[float], typer.Option("--precision", help="Precisions of the curve (the base "
-                                                       "rate is always added).")] = [],  # noqa: B006
-        curve_rule: Annotated[list[str], typer.Option("--curve-rule", help="'class' (the oracle's rule) and/or "
-                                                      "'score' (ground quota, then balanced ranking).")] = [],  # noqa: B006
-        cell: Annotated[float | None, typer.Option(help="Cell (m) of the 'score' rule (default: the codec's).")]
-        = None,
+        curve_labels: Annotated[
+            str | None, typer.Option(help="Label definition of the curve (default: the first --labels).")
+        ] = None,
+        precision: Annotated[
+            list[float], typer.Option("--precision", help="Precisions of the curve (the base rate is always added).")
+        ] = [],  # noqa: B006
+        curve_rule: Annotated[
+            list[str],
+            typer.Option(
+                "--curve-rule", help="'class' (the oracle's rule) and/or 'score' (ground quota, then balanced ranking)."
+            ),
+        ] = [],  # noqa: B006
+        cell: Annotated[float | None, typer.Option(help="Cell (m) of the 'score' rule (default: the codec's).")] = None,
         ground_share: Annotated[float, typer.Option(help="The noisy oracle's ground quota.", min=0, max=1)] = 0.1,
         frames: Annotated[int | None, typer.Option(help="Only the first N frames.", min=1)] = None,
         seed: Annotated[int, typer.Option(help="Seed of the dataset, the codecs and the corruption.")] = 0,
@@ -180,9 +221,19 @@ def lwbench_register_commands(cli) -> None:
             raise ParameterError(f"diagnose: --curve-labels {chosen!r} is none of {sorted(folders)}")
         sel = _codec(reg, codec, parse_assignments(param, "--param"), seed)
         idx = list(range(min(len(ds), frames) if frames else len(ds)))
-        result = diagnose_selector(reg, ds, sel, folders, chosen if curve else None,
-                                   tuple(precision) or DEFAULT_PRECISIONS, ground_share, seed, idx,
-                                   tuple(curve_rule) or ("class",), cell)
+        result = diagnose_selector(
+            reg,
+            ds,
+            sel,
+            folders,
+            chosen if curve else None,
+            tuple(precision) or DEFAULT_PRECISIONS,
+            ground_share,
+            seed,
+            idx,
+            tuple(curve_rule) or ("class",),
+            cell,
+        )
         _print(result)
         if json_out is not None:
             json_out.parent.mkdir(parents=True, exist_ok=True)

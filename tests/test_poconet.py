@@ -91,8 +91,9 @@ def _batch(n: int, seed: int, cfg: NetConfig = SMALL):
     rng = np.random.default_rng(seed)
     pts = rng.uniform(-10, 10, (n, 3)).astype(np.float32)
     feats = np.column_stack([pts, rng.uniform(0, 1, n)]).astype(np.float32)
-    return to_torch([prepare(pts, cfg.k, cfg.ratio, len(cfg.d_out), np.random.default_rng(seed))], [feats],
-                    torch.device("cpu"))
+    return to_torch(
+        [prepare(pts, cfg.k, cfg.ratio, len(cfg.d_out), np.random.default_rng(seed))], [feats], torch.device("cpu")
+    )
 
 
 def test_shapes_and_the_siamese_loss():
@@ -113,8 +114,11 @@ def test_training_steps_lower_the_loss_on_a_fixed_batch():
     torch.manual_seed(0)
     net = PocoNet(SMALL)
     a = _batch(1024, 0)
-    b = to_torch([prepare(a["xyz"][0][0].numpy(), SMALL.k, SMALL.ratio, len(SMALL.d_out), np.random.default_rng(1))],
-                 [a["features"][0].numpy()], torch.device("cpu"))  # the same points, another sampling
+    b = to_torch(
+        [prepare(a["xyz"][0][0].numpy(), SMALL.k, SMALL.ratio, len(SMALL.d_out), np.random.default_rng(1))],
+        [a["features"][0].numpy()],
+        torch.device("cpu"),
+    )  # the same points, another sampling
     x = a["xyz"][0][0, :, 0]  # the class is where a point lies: learnable from the geometry
     labels = ((x > -3).long() + (x > 3).long()).unsqueeze(0)
     opt = torch.optim.Adam(net.parameters(), lr=1e-2)
@@ -155,7 +159,6 @@ def test_selection_by_class_fills_the_budget_high_then_ground_with_a_ground_quot
     assert set(a.tolist()) != set(b.tolist())  # and the seed picks within the class
 
 
-
 def test_a_corrupt_or_foreign_checkpoint_is_a_clear_error(tmp_path):
     (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
     with pytest.raises(DataFormatError, match="not a readable checkpoint"):
@@ -163,8 +166,10 @@ def test_a_corrupt_or_foreign_checkpoint_is_a_clear_error(tmp_path):
     torch.save({"format": "something-else", "model": {}}, tmp_path / "foreign.pt")
     with pytest.raises(DataFormatError, match="not a PocoNet checkpoint"):
         load_checkpoint(str(tmp_path / "foreign.pt"), "cpu")
-    torch.save({"format": "lwbench-poconet", "config": SMALL.as_dict(), "model": {"x": torch.zeros(1)}},
-               tmp_path / "mismatch.pt")
+    torch.save(
+        {"format": "lwbench-poconet", "config": SMALL.as_dict(), "model": {"x": torch.zeros(1)}},
+        tmp_path / "mismatch.pt",
+    )
     with pytest.raises(DataFormatError, match="does not match"):
         load_checkpoint(str(tmp_path / "mismatch.pt"), "cpu")
 
@@ -193,6 +198,7 @@ def test_the_oracle_keeps_high_priority_then_ground(tmp_path, street):
     assert (labels[1][few] == HIGH).all()
     # Within the class a seeded random order: spread over the class, not its densest patch.
     high = frame.points[labels[1] == HIGH]
+
     def spread(x):
         lo, hi = np.percentile(x, [5, 95])
         return hi - lo
@@ -279,7 +285,8 @@ def test_binary_loss_and_a_normalized_codeword_that_the_points_see():
     labels = torch.randint(0, 3, (1, 2048))
     _, parts = siamese_loss((logits, logits), (code, code), labels, None, lam=1.0, binary=True)
     expected = torch.nn.functional.binary_cross_entropy_with_logits(
-        logits.reshape(-1, 3), torch.nn.functional.one_hot(labels.reshape(-1), 3).float())
+        logits.reshape(-1, 3), torch.nn.functional.one_hot(labels.reshape(-1), 3).float()
+    )
     assert parts["label"] == pytest.approx(float(expected), rel=1e-5)
     net.eval()
     with torch.no_grad():
@@ -295,8 +302,9 @@ def test_heading_augmentation_keeps_the_driving_direction():
     for seed in range(50):
         out = augment_heading(pts, np.random.default_rng(seed), "jitter", 10.0)[0]
         assert np.degrees(abs(np.arctan2(out[1], out[0]))) <= 10.0 + 1e-4 and out[2] == 1.0
-    mirrored = [augment_heading(np.array([[0.0, 5.0, 0.0]], np.float32), np.random.default_rng(s))[0, 1] < 0
-                for s in range(50)]
+    mirrored = [
+        augment_heading(np.array([[0.0, 5.0, 0.0]], np.float32), np.random.default_rng(s))[0, 1] < 0 for s in range(50)
+    ]
     assert 10 < sum(mirrored) < 40  # a mirror half the time
     np.testing.assert_array_equal(augment_heading(pts, np.random.default_rng(0), "none"), pts)
 
@@ -318,8 +326,17 @@ def test_training_runs_end_to_end_and_resumes(tmp_path):
     from lwbench_plugins.poconet.train import TrainConfig, export, train
 
     net = NetConfig(d_out=(8, 16, 32, 32), codeword=64, output="sigmoid", context="points").as_dict()
-    cfg = TrainConfig(out=str(tmp_path), drives=("urban:30",), val_drives=("urban:20",), frames=6, margin=1,
-                      val_frames=2, epochs=1, points_in=4096, net=net)
+    cfg = TrainConfig(
+        out=str(tmp_path),
+        drives=("urban:30",),
+        val_drives=("urban:20",),
+        frames=6,
+        margin=1,
+        val_frames=2,
+        epochs=1,
+        points_in=4096,
+        net=net,
+    )
     train(cfg)
     cfg.epochs = 2
     last = train(cfg)  # resumes at epoch 2

@@ -180,8 +180,9 @@ def test_the_noisy_oracle_keeps_points_of_the_precision_asked_for():
     assert curve[0].values["share"] < 0.7  # 30 % truly high, the rest anywhere
     # The balanced rule takes every 3 m cell's best point first: the marked points win only
     # inside their cells, so precision moves the selection less.
-    balanced = noisy_oracle_curve(ds, [0, 1], truth, lambda n: n // 40, [0.3, 1.0], _KeptShare(), ground_share=0.0,
-                                  rule="score", cell=3.0)
+    balanced = noisy_oracle_curve(
+        ds, [0, 1], truth, lambda n: n // 40, [0.3, 1.0], _KeptShare(), ground_share=0.0, rule="score", cell=3.0
+    )
     assert balanced[0].values["share"] < balanced[1].values["share"] < curve[1].values["share"]
     with pytest.raises(ParameterError, match="rule"):
         noisy_oracle_curve(ds, [0], truth, lambda n: 10, [1.0], _KeptShare(), rule="argmax")
@@ -198,8 +199,11 @@ def two_drive_street(tmp_path_factory):
     root = tmp_path_factory.mktemp("diag")
     ds = ["--dataset-param", "scene=urban", "--dataset-param", "traversals=2", "--dataset-param", "frames=3"]
     for counts_from in ("all", "mapping"):
-        res = runner.invoke(app, ["label", "sim", "--out", str(root / counts_from), "--counts-from", counts_from,
-                                  *ds], catch_exceptions=False)
+        res = runner.invoke(
+            app,
+            ["label", "sim", "--out", str(root / counts_from), "--counts-from", counts_from, *ds],
+            catch_exceptions=False,
+        )
         assert res.exit_code == 0, res.output
     return root, ds
 
@@ -209,17 +213,37 @@ def test_diagnose_reports_each_label_definition(two_drive_street):
 
     root, ds = two_drive_street
     out = root / "oracle.json"
-    res = runner.invoke(app, ["diagnose", "oracle", "--param", f"labels={root / 'mapping'}", "--param", "ratio=0.05",
-                              "--dataset", "sim", *ds, "--labels", f"mapping={root / 'mapping'}",
-                              "--labels", f"all={root / 'all'}", "--json", str(out)], catch_exceptions=False)
+    res = runner.invoke(
+        app,
+        [
+            "diagnose",
+            "oracle",
+            "--param",
+            f"labels={root / 'mapping'}",
+            "--param",
+            "ratio=0.05",
+            "--dataset",
+            "sim",
+            *ds,
+            "--labels",
+            f"mapping={root / 'mapping'}",
+            "--labels",
+            f"all={root / 'all'}",
+            "--json",
+            str(out),
+        ],
+        catch_exceptions=False,
+    )
     assert res.exit_code == 0, res.output
     result = json.loads(out.read_text())
     assert result["frames"] == 6 and set(result["labels"]) == {"mapping", "all"}
     assert result["labels"]["mapping"]["kept_precision"] == 1.0  # the oracle on its own labels
     assert 0 < result["labels"]["all"]["kept_precision"] < 1.0  # the other definition differs
     assert "| mapping |" in res.stdout
-    bad = runner.invoke(app, ["diagnose", "random", "--param", "ratio=0.1", "--dataset", "sim", *ds, "--labels",
-                              f"x={root / 'nowhere'}"])
+    bad = runner.invoke(
+        app,
+        ["diagnose", "random", "--param", "ratio=0.1", "--dataset", "sim", *ds, "--labels", f"x={root / 'nowhere'}"],
+    )
     assert bad.exit_code != 0
 
 
@@ -229,9 +253,30 @@ def test_diagnose_draws_the_noisy_oracle_curve(two_drive_street):
 
     root, ds = two_drive_street
     out = root / "curve.json"
-    res = runner.invoke(app, ["diagnose", "random", "--param", "ratio=0.1", "--dataset", "sim", *ds, "--labels",
-                              f"mapping={root / 'mapping'}", "--curve", "--precision", "1.0", "--curve-rule", "class",
-                              "--curve-rule", "score", "--json", str(out)], catch_exceptions=False)
+    res = runner.invoke(
+        app,
+        [
+            "diagnose",
+            "random",
+            "--param",
+            "ratio=0.1",
+            "--dataset",
+            "sim",
+            *ds,
+            "--labels",
+            f"mapping={root / 'mapping'}",
+            "--curve",
+            "--precision",
+            "1.0",
+            "--curve-rule",
+            "class",
+            "--curve-rule",
+            "score",
+            "--json",
+            str(out),
+        ],
+        catch_exceptions=False,
+    )
     assert res.exit_code == 0, res.output
     curve = json.loads(out.read_text())["curve"]
     for rule in ("class", "score"):

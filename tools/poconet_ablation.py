@@ -33,7 +33,7 @@ def main() -> None:
     from lwbench_plugins.poconet.labels import LabelStore
     from lwbench_plugins.poconet.train import gfa_ablation
 
-    from lwbench.registry import get_registry
+    from lwbench import open_dataset
 
     weights = str(SHIPPED_WEIGHTS if args.weights == "shipped" else args.weights)
     net, meta = load_checkpoint(weights, "cpu")
@@ -41,7 +41,7 @@ def main() -> None:
     scans = []
     for frame_index in args.frames:  # ordered frame-major: the partner half a list away is another seed
         for seed in args.seeds:
-            ds = get_registry().dataset("sim")(**PROTOCOL, seed=seed)
+            ds = open_dataset("sim", {**PROTOCOL, "seed": seed})
             store = LabelStore(args.labels_root / f"urban-auto-30-seed-{seed}-mapping")
             f = ds[frame_index]
             lab, _ = store.read(frame_index, len(f))
@@ -53,8 +53,10 @@ def main() -> None:
     print("|---|---|---|---|")
     print(f"| own | – | – | {out['gfa_own_auc']:.4f} |")
     for case, what in (("swap", "another street's"), ("zero", "zero")):
-        print(f"| {what} | {100 * out[f'gfa_{case}_changed']:.2f} % | {out[f'gfa_{case}_dp']:.4f} | "
-              f"{out[f'gfa_{case}_auc']:.4f} |")
+        print(
+            f"| {what} | {100 * out[f'gfa_{case}_changed']:.2f} % | {out[f'gfa_{case}_dp']:.4f} | "
+            f"{out[f'gfa_{case}_auc']:.4f} |"
+        )
 
 
 if __name__ == "__main__":

@@ -26,12 +26,40 @@ def validation_ate(checkpoint: Path, seed: int) -> tuple[float, float]:
     with tempfile.TemporaryDirectory() as tmp:
         store = Path(tmp) / "r.sqlite"
         ds = [a for p in (*PROTOCOL, f"seed={seed}") for a in ("--dataset-param", p)]
-        subprocess.run([sys.executable, "-m", "lwbench.cli", "run", "--dataset", "sim", *ds, "--seed", str(seed),
-                        "--store", str(store), "--codec", "poconet", "--param", "poconet.ratio=0.0833",
-                        "--param", f"poconet.weights={checkpoint}", "--codec", "random", "--param",
-                        "random.ratio=0.0833"], capture_output=True, text=True, check=True)
-        res = subprocess.run([sys.executable, "-m", "lwbench.cli", "leaderboard", "--store", str(store),
-                              "--format", "json"], capture_output=True, text=True, check=True)
+        subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "lwbench.cli",
+                "run",
+                "--dataset",
+                "sim",
+                *ds,
+                "--seed",
+                str(seed),
+                "--store",
+                str(store),
+                "--codec",
+                "poconet",
+                "--param",
+                "poconet.ratio=0.0833",
+                "--param",
+                f"poconet.weights={checkpoint}",
+                "--codec",
+                "random",
+                "--param",
+                "random.ratio=0.0833",
+            ],
+            capture_output=True,
+            text=True,
+            check=True,
+        )
+        res = subprocess.run(
+            [sys.executable, "-m", "lwbench.cli", "leaderboard", "--store", str(store), "--format", "json"],
+            capture_output=True,
+            text=True,
+            check=True,
+        )
     board = {e["codec"]: e["ate_rmse"] for e in json.loads(res.stdout)}
     return board["poconet"], board["random"]
 
@@ -45,18 +73,28 @@ def main() -> None:
     args = ap.parse_args()
     curve = [json.loads(line) for line in (args.run / "curve.jsonl").read_text().splitlines() if line.strip()]
     ate = {e: validation_ate(args.run / f"epoch-{e:03d}.pt", args.seed) for e in args.ate_epochs}
-    print("| epoch | steps | minutes | loss (label / global) | AUC P(high) | top-k precision | IoU high / low / ground "
-          f"| GFA swap / zero: classes changed, mean abs. change of P(high) | ATE rmse seed {args.seed}, 1/12 "
-          "(poconet / random) |")
+    print(
+        "| epoch | steps | minutes | loss (label / global) | AUC P(high) | top-k precision | IoU high / low / ground "
+        f"| GFA swap / zero: classes changed, mean abs. change of P(high) | ATE rmse seed {args.seed}, 1/12 "
+        "(poconet / random) |"
+    )
     print("|---|---|---|---|---|---|---|---|---|")
     for r in curve:
         iou = " / ".join(f"{r[f'iou_{c}']:.2f}" for c in ("high_priority", "low_priority", "ground"))
-        gfa = (f"{100 * r['gfa_swap_changed']:.2f} % / {100 * r['gfa_zero_changed']:.2f} %, "
-               f"{r['gfa_swap_dp']:.4f} / {r['gfa_zero_dp']:.4f}") if "gfa_swap_changed" in r else "–"
+        gfa = (
+            (
+                f"{100 * r['gfa_swap_changed']:.2f} % / {100 * r['gfa_zero_changed']:.2f} %, "
+                f"{r['gfa_swap_dp']:.4f} / {r['gfa_zero_dp']:.4f}"
+            )
+            if "gfa_swap_changed" in r
+            else "–"
+        )
         a = f"{100 * ate[r['epoch']][0]:.2f} / {100 * ate[r['epoch']][1]:.2f} cm" if r["epoch"] in ate else ""
         auc, top = r.get("auc_high", float("nan")), r.get("top_k_precision", float("nan"))
-        print(f"| {r['epoch']} | {r['steps']} | {r['elapsed_s'] / 60:.1f} | {r['loss']:.4f} ({r['label']:.4f} / "
-              f"{r['global']:.2g}) | {auc:.3f} | {top:.3f} | {iou} | {gfa} | {a} |")
+        print(
+            f"| {r['epoch']} | {r['steps']} | {r['elapsed_s'] / 60:.1f} | {r['loss']:.4f} ({r['label']:.4f} / "
+            f"{r['global']:.2g}) | {auc:.3f} | {top:.3f} | {iou} | {gfa} | {a} |"
+        )
     if args.png:
         import matplotlib
 

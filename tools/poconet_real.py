@@ -23,8 +23,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from _real import real_data_dir  # noqa: E402
 
-from lwbench.registry import get_registry  # noqa: E402
-from lwbench.run import resolve_dataset  # noqa: E402
+from lwbench import codec_class, open_dataset  # noqa: E402
 
 DEFAULT_FOLDERS = ("kitti00_frames0-1", "ouster_os1-128_seq3")
 
@@ -84,19 +83,23 @@ def main() -> None:
     from lwbench_plugins.poconet.labels import CLASSES, LabelSettings, ground_mask
 
     folders = args.folders or [real_data_dir() / f for f in DEFAULT_FOLDERS]
-    reg = get_registry()
     print(f"budget {args.ratio:.4f} of every scan; shares: predicted class of the whole scan / of the kept points")
-    print("| scan | points | budget | kept | predicted " + " / ".join(CLASSES) + " (scan) | kept "
-          + " / ".join(CLASSES) + " | kept: median range, height, on ground | random: same | "
-          "mean P(high), non-ground: left / right, abs(y) < 8 m / > 8 m |")
+    print(
+        "| scan | points | budget | kept | predicted "
+        + " / ".join(CLASSES)
+        + " (scan) | kept "
+        + " / ".join(CLASSES)
+        + " | kept: median range, height, on ground | random: same | "
+        "mean P(high), non-ground: left / right, abs(y) < 8 m / > 8 m |"
+    )
     print("|---|---|---|---|---|---|---|---|---|")
     for folder in folders:
-        frame = resolve_dataset(reg, str(folder), {}, 0).build(reg)[0]
-        sel = reg.codec("poconet")(ratio=args.ratio, weights=args.weights)
+        frame = open_dataset(folder)[0]
+        sel = codec_class("poconet")(ratio=args.ratio, weights=args.weights)
         probs = sel.probabilities(frame)
         cls = probs.argmax(axis=1)
         keep = sel.select(frame)
-        rand = reg.codec("random")(ratio=args.ratio, seed=0).select(frame)
+        rand = codec_class("random")(ratio=args.ratio, seed=0).select(frame)
         ground = ground_mask(frame.points, LabelSettings())
         scan_share = np.bincount(cls, minlength=3) / len(frame)
         kept_share = np.bincount(cls[keep], minlength=3) / max(1, len(keep))
@@ -106,14 +109,24 @@ def main() -> None:
             return f"{d['range_m']:.1f} m, {d['height_m']:.2f} m, {d['ground']:.0%}"
 
         side = lateral_bias(frame.points, probs[:, 1], cls)
-        print(f"| {folder.name} | {len(frame):,} | {sel.budget(len(frame)):,} | {len(keep):,} | "
-              + " / ".join(f"{s:.1%}" for s in scan_share) + " | "
-              + " / ".join(f"{s:.1%}" for s in kept_share) + f" | {fmt(ours)} | {fmt(theirs)} | "
-              + " / ".join(f"{v:.3f}" for v in side) + " |")
+        print(
+            f"| {folder.name} | {len(frame):,} | {sel.budget(len(frame)):,} | {len(keep):,} | "
+            + " / ".join(f"{s:.1%}" for s in scan_share)
+            + " | "
+            + " / ".join(f"{s:.1%}" for s in kept_share)
+            + f" | {fmt(ours)} | {fmt(theirs)} | "
+            + " / ".join(f"{v:.3f}" for v in side)
+            + " |"
+        )
         if args.png:
             args.png.mkdir(parents=True, exist_ok=True)
-            top_down(args.png / f"poconet_{folder.name}.png", frame.points, keep, cls,
-                     f"poconet on {folder.name} (first frame): {len(keep):,} of {len(frame):,} points")
+            top_down(
+                args.png / f"poconet_{folder.name}.png",
+                frame.points,
+                keep,
+                cls,
+                f"poconet on {folder.name} (first frame): {len(keep):,} of {len(frame):,} points",
+            )
 
 
 if __name__ == "__main__":

@@ -71,18 +71,52 @@ def one_seed(args, seed: int, ratio: float, curve: bool) -> list[dict]:
     for s in MAIN:
         main += ["--codec", s] + ([] if s == "raw" else ["--param", f"{s}.ratio={ratio}"])
     main += ["--param", f"poconet.weights={args.weights}", "--param", "poconet.score=p_high,random"]
-    main += ["--codec", "oracle", "--param", f"oracle.ratio={ratio}", "--param",
-             f"oracle.labels={labels['mapping']},{labels['all']}"]
+    main += [
+        "--codec",
+        "oracle",
+        "--param",
+        f"oracle.ratio={ratio}",
+        "--param",
+        f"oracle.labels={labels['mapping']},{labels['all']}",
+    ]
     lwbench(*main)
-    lwbench(*common, "--codec", "poconet", "--param", f"poconet.ratio={ratio}", "--param",
-            f"poconet.weights={args.weights}", "--param", "poconet.cell=0")
+    lwbench(
+        *common,
+        "--codec",
+        "poconet",
+        "--param",
+        f"poconet.ratio={ratio}",
+        "--param",
+        f"poconet.weights={args.weights}",
+        "--param",
+        "poconet.cell=0",
+    )
     if curve:
         ps = ",".join(f"{p:g}" for p in args.precisions)
-        lwbench(*common, "--codec", "oracle", "--param", f"oracle.ratio={ratio}", "--param",
-                f"oracle.labels={labels['mapping']}", "--param", f"oracle.precision={ps}")
-        lwbench(*common, "--codec", "oracle", "--param", f"oracle.ratio={ratio}", "--param",
-                f"oracle.labels={labels['mapping']}", "--param", f"oracle.precision={ps},1", "--param",
-                "oracle.rule=score")
+        lwbench(
+            *common,
+            "--codec",
+            "oracle",
+            "--param",
+            f"oracle.ratio={ratio}",
+            "--param",
+            f"oracle.labels={labels['mapping']}",
+            "--param",
+            f"oracle.precision={ps}",
+        )
+        lwbench(
+            *common,
+            "--codec",
+            "oracle",
+            "--param",
+            f"oracle.ratio={ratio}",
+            "--param",
+            f"oracle.labels={labels['mapping']}",
+            "--param",
+            f"oracle.precision={ps},1",
+            "--param",
+            "oracle.rule=score",
+        )
     board = json.loads(lwbench("leaderboard", "--store", str(args.store), "--format", "json"))
     rows = []
     for e in board:
@@ -98,9 +132,25 @@ def one_seed(args, seed: int, ratio: float, curve: bool) -> list[dict]:
     if "poconet" in MAIN:
         out = args.work / f"{tag}-diagnose-{ratio:.4f}.json"
         if not out.exists():
-            lwbench("diagnose", "poconet", "--param", f"ratio={ratio}", "--param", f"weights={args.weights}",
-                    "--dataset", "sim", *ds, "--seed", str(seed), "--labels", f"mapping={labels['mapping']}",
-                    "--labels", f"all={labels['all']}", "--json", str(out))
+            lwbench(
+                "diagnose",
+                "poconet",
+                "--param",
+                f"ratio={ratio}",
+                "--param",
+                f"weights={args.weights}",
+                "--dataset",
+                "sim",
+                *ds,
+                "--seed",
+                str(seed),
+                "--labels",
+                f"mapping={labels['mapping']}",
+                "--labels",
+                f"all={labels['all']}",
+                "--json",
+                str(out),
+            )
         rows.append({"row": "poconet diagnostics", "seed": seed, **json.loads(out.read_text())["labels"]})
     return rows
 
@@ -115,18 +165,32 @@ def table(rows: list[dict], seeds: list[int]) -> str:
     for r in rows:
         if "ate_rmse" in r:
             ate.setdefault(r["row"], {})[r["seed"]] = r
-    order = ["raw", "random", "harris3d", "iss", "sift3d", "poconet", "poconet, score=random (control)",
-             "poconet, cell=0 (no balance)", "oracle (mapping)", "oracle (all)"]
+    order = [
+        "raw",
+        "random",
+        "harris3d",
+        "iss",
+        "sift3d",
+        "poconet",
+        "poconet, score=random (control)",
+        "poconet, cell=0 (no balance)",
+        "oracle (mapping)",
+        "oracle (all)",
+    ]
     ate = dict(sorted(ate.items(), key=lambda kv: (order.index(kv[0]) if kv[0] in order else len(order), kv[0])))
     rnd = ate.get("random", {})
     head = " / ".join(str(s) for s in seeds)
-    lines = [f"| method | ATE rmse (cm), seeds {head} | mean ± std | − random, per seed (cm) | beats random | "
-             "rot error (deg) | N (map points) | r_c |", "|---|---|---|---|---|---|---|---|"]
+    lines = [
+        f"| method | ATE rmse (cm), seeds {head} | mean ± std | − random, per seed (cm) | beats random | "
+        "rot error (deg) | N (map points) | r_c |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for name, per in ate.items():
         vals = [per[s]["ate_rmse"] if s in per else None for s in seeds]
         have = np.array([v for v in vals if v is not None], dtype=float)
-        diffs = [None if v is None or s not in rnd else v - rnd[s]["ate_rmse"]
-                 for v, s in zip(vals, seeds, strict=True)]
+        diffs = [
+            None if v is None or s not in rnd else v - rnd[s]["ate_rmse"] for v, s in zip(vals, seeds, strict=True)
+        ]
         wins = sum(d is not None and d < 0 for d in diffs)
         rot = np.mean([per[s]["rot_err_deg"] for s in per if per[s].get("rot_err_deg") is not None])
         mp = np.mean([per[s]["map_points"] for s in per if per[s].get("map_points") is not None])
@@ -142,12 +206,18 @@ def table(rows: list[dict], seeds: list[int]) -> str:
     if keypoints and "poconet" in means:
         best = min(keypoints, key=means.get)
         inside = abs(means["poconet"] - means[best]) <= stds[best]
-        lines += ["", f"Best keypoint selector: {best} ({100 * means[best]:.2f} ± {100 * stds[best]:.2f} cm); poconet "
-                  f"({100 * means['poconet']:.2f} cm) is {'within' if inside else 'outside'} its spread."]
+        lines += [
+            "",
+            f"Best keypoint selector: {best} ({100 * means[best]:.2f} ± {100 * stds[best]:.2f} cm); poconet "
+            f"({100 * means['poconet']:.2f} cm) is {'within' if inside else 'outside'} its spread.",
+        ]
     diag = [r for r in rows if r["row"] == "poconet diagnostics"]
     if diag:
-        lines += ["", "| poconet vs labels | base rate | AUC | top-k precision | kept precision | kept ground share |",
-                  "|---|---|---|---|---|---|"]
+        lines += [
+            "",
+            "| poconet vs labels | base rate | AUC | top-k precision | kept precision | kept ground share |",
+            "|---|---|---|---|---|---|",
+        ]
         for d in ("mapping", "all"):
             cols = ("base_rate", "auc", "top_k_precision", "kept_precision", "kept_ground_share")
             cells = [np.mean([r[d][c] for r in diag]) for c in cols]
@@ -176,8 +246,10 @@ def main() -> None:
         curve = not args.no_curve and any(abs(ratio - c) < 1e-3 for c in args.curve_ratios)
         rows = [r for seed in args.seeds for r in one_seed(args, seed, ratio, curve)]
         everything[f"{ratio:.4f}"] = rows
-        print(f"\n### sim {args.scene}, sensor {args.sensor}, budget {ratio:.4f} of every scan (raw keeps all); "
-              f"held-out seeds {args.seeds}, {args.frames} frames per drive\n")
+        print(
+            f"\n### sim {args.scene}, sensor {args.sensor}, budget {ratio:.4f} of every scan (raw keeps all); "
+            f"held-out seeds {args.seeds}, {args.frames} frames per drive\n"
+        )
         print(table(rows, args.seeds), flush=True)
     if args.json:
         args.json.write_text(json.dumps(everything, indent=1, default=float))

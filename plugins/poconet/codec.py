@@ -40,12 +40,16 @@ from lwbench import (
     DEVICE_PARAM,
     DataFormatError,
     Frame,
+    LabelFolder,
     Param,
     ParameterError,
     SelectionCodec,
+    noisy_classes,
     resolve_device,
+    select_by_class,
+    select_by_score,
 )
-from lwbench.selector_diagnostics import HIGH, LabelFolder, noisy_classes, select_by_class, select_by_score
+from lwbench import LABEL_HIGH as HIGH
 
 __all__ = [
     "PocoNetSelector",
@@ -104,14 +108,26 @@ class PocoNetSelector(SelectionCodec):
     params = (
         *BUDGET_PARAMS,
         Param("weights", "str", "shipped", "checkpoint: 'shipped' (trained on sim urban) or a path"),
-        Param("points_in", "int", None, "the network sees at most this many points of a scan "
-              "(default: the density it was trained at)", low=256),
-        Param("seed", "int", 0, "seed of the input sample, the network's sub-sampling and the order within a class",
-              low=0),
+        Param(
+            "points_in",
+            "int",
+            None,
+            "the network sees at most this many points of a scan (default: the density it was trained at)",
+            low=256,
+        ),
+        Param(
+            "seed", "int", 0, "seed of the input sample, the network's sub-sampling and the order within a class", low=0
+        ),
         GROUND_SHARE,
         Param("cell", "float", 3.0, "cell size (m) of the spatial balance; 0 = plain P(high) order", low=0.0),
-        Param("score", "str", "p_high", "what ranks the non-ground points: the network's P(high), or 'random' "
-              "(a control: the same rule without the network's ranking)", choices=("p_high", "random")),
+        Param(
+            "score",
+            "str",
+            "p_high",
+            "what ranks the non-ground points: the network's P(high), or 'random' "
+            "(a control: the same rule without the network's ranking)",
+            choices=("p_high", "random"),
+        ),
         DEVICE_PARAM,
     )
 
@@ -160,8 +176,9 @@ class PocoNetSelector(SelectionCodec):
         self._last = (frame.points, frame.index, probs)
         rng = np.random.default_rng([self.config["seed"], frame.index, 1])
         score = probs[:, HIGH] if self.config["score"] == "p_high" else rng.random(len(frame))
-        return select_by_score(frame.points, probs.argmax(axis=1), score, k, rng,
-                               self.config["ground_share"], self.config["cell"])
+        return select_by_score(
+            frame.points, probs.argmax(axis=1), score, k, rng, self.config["ground_share"], self.config["cell"]
+        )
 
 
 class OracleSelector(SelectionCodec):
@@ -175,10 +192,23 @@ class OracleSelector(SelectionCodec):
         *BUDGET_PARAMS,
         Param("labels", "str", None, "folder written by `lwbench label`"),
         Param("seed", "int", 0, "seed of the order within a class (and of the corruption)", low=0),
-        Param("precision", "float", None, "noisy oracle: the high-priority set corrupted to this precision "
-              "(same size, the rest truly low points at random)", low=0.0, high=1.0),
-        Param("rule", "str", "class", "'class': ground quota, high, ground, rest; 'score': ground quota, then "
-              "the high-priority marks ranked with spatial balance (poconet's rule)", choices=("class", "score")),
+        Param(
+            "precision",
+            "float",
+            None,
+            "noisy oracle: the high-priority set corrupted to this precision "
+            "(same size, the rest truly low points at random)",
+            low=0.0,
+            high=1.0,
+        ),
+        Param(
+            "rule",
+            "str",
+            "class",
+            "'class': ground quota, high, ground, rest; 'score': ground quota, then "
+            "the high-priority marks ranked with spatial balance (poconet's rule)",
+            choices=("class", "score"),
+        ),
         Param("cell", "float", 3.0, "cell size (m) of the 'score' rule's spatial balance", low=0.0),
         GROUND_SHARE,
     )
@@ -199,6 +229,13 @@ class OracleSelector(SelectionCodec):
         if p is not None:
             cls = noisy_classes(cls, p, rng)
         if self.config["rule"] == "score":
-            return select_by_score(frame.points, cls, (cls == HIGH).astype(np.float64), k, rng,
-                                   self.config["ground_share"], self.config["cell"])
+            return select_by_score(
+                frame.points,
+                cls,
+                (cls == HIGH).astype(np.float64),
+                k,
+                rng,
+                self.config["ground_share"],
+                self.config["cell"],
+            )
         return select_by_class(cls, k, self.config["seed"], frame.index, self.config["ground_share"])

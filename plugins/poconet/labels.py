@@ -41,9 +41,11 @@ from pathlib import Path
 
 import numpy as np
 
-from lwbench import DataFormatError, Dataset, Frame, ParameterError
+from lwbench import LABEL_GROUND as GROUND
+from lwbench import LABEL_HIGH as HIGH
+from lwbench import LABEL_LOW as LOW
+from lwbench import DataFormatError, Dataset, Frame, LabelFolder, ParameterError
 from lwbench.geometry import transform, voxel_keys
-from lwbench.selector_diagnostics import GROUND, HIGH, LOW, LabelFolder
 
 __all__ = [
     "LOW",
@@ -208,8 +210,14 @@ class LabelStore:
         self.root = Path(root)
         self._folder: LabelFolder | None = None
 
-    def write(self, dataset: Dataset, frames: list[int], labels: list[np.ndarray], counts: list[np.ndarray],
-              settings: LabelSettings) -> None:
+    def write(
+        self,
+        dataset: Dataset,
+        frames: list[int],
+        labels: list[np.ndarray],
+        counts: list[np.ndarray],
+        settings: LabelSettings,
+    ) -> None:
         (self.root / "labels").mkdir(parents=True, exist_ok=True)
         (self.root / "counts").mkdir(exist_ok=True)
         for i, lab, cnt in zip(frames, labels, counts, strict=True):

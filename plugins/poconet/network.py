@@ -51,8 +51,16 @@ class NetConfig:
     context: str = "bottleneck"
 
     def as_dict(self) -> dict:
-        return {"in_features": self.in_features, "d_out": list(self.d_out), "k": self.k, "ratio": self.ratio,
-                "codeword": self.codeword, "classes": self.classes, "output": self.output, "context": self.context}
+        return {
+            "in_features": self.in_features,
+            "d_out": list(self.d_out),
+            "k": self.k,
+            "ratio": self.ratio,
+            "codeword": self.codeword,
+            "classes": self.classes,
+            "output": self.output,
+            "context": self.context,
+        }
 
     @classmethod
     def from_dict(cls, d: dict) -> NetConfig:
@@ -185,11 +193,13 @@ class PocoNet(nn.Module):
         # "points": the codeword again beside every point's own features, as PointNet's
         # segmentation head concatenates its global feature to each point.
         self.point_context = _mlp(config.codeword, 16) if at_points else None
-        self.head = nn.Sequential(_mlp(c_dec + (16 if at_points else 0), 32), nn.Dropout(0.3),
-                                  nn.Linear(32, config.classes))
+        self.head = nn.Sequential(
+            _mlp(c_dec + (16 if at_points else 0), 32), nn.Dropout(0.3), nn.Linear(32, config.classes)
+        )
 
-    def forward(self, batch: dict[str, list[torch.Tensor] | torch.Tensor],
-                codeword: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    def forward(
+        self, batch: dict[str, list[torch.Tensor] | torch.Tensor], codeword: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """``batch``: ``xyz`` / ``neigh`` / ``sub`` / ``interp`` lists per layer and ``features``
         (see :func:`lwbench_plugins.poconet.data.prepare`). Returns per-point class logits
         ``(B, N, classes)`` and the codeword ``(B, codeword)``. A given ``codeword`` replaces the
@@ -241,8 +251,7 @@ def siamese_loss(
     if binary:
         target = fn.one_hot(flat, n_cls).to(logits[0].dtype)
         w = None if class_weights is None else class_weights.to(logits[0].dtype).expand_as(target)
-        l_label = sum(fn.binary_cross_entropy_with_logits(lg.reshape(-1, n_cls), target, weight=w)
-                      for lg in logits) / 2
+        l_label = sum(fn.binary_cross_entropy_with_logits(lg.reshape(-1, n_cls), target, weight=w) for lg in logits) / 2
     else:
         l_label = sum(fn.cross_entropy(lg.reshape(-1, n_cls), flat, weight=class_weights) for lg in logits) / 2
     l_global = (codewords[0] - codewords[1]).pow(2).mean()

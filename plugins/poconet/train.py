@@ -45,9 +45,9 @@ from pathlib import Path
 
 import numpy as np
 
-from lwbench import Dataset, ParameterError
-from lwbench.registry import get_registry
-from lwbench.selector_diagnostics import GROUND, HIGH, roc_auc, top_k_precision
+from lwbench import LABEL_GROUND as GROUND
+from lwbench import LABEL_HIGH as HIGH
+from lwbench import Dataset, ParameterError, open_dataset, roc_auc, top_k_precision
 
 from .codec import CHECKPOINT_FORMAT
 from .data import crop, features, prepare, to_torch
@@ -107,7 +107,7 @@ def parse_drives(text: str) -> tuple[str, ...]:
 
 def _sim(drive: str, frames: int) -> Dataset:
     scene, _, seed = drive.partition(":")
-    return get_registry().dataset("sim")(**SIM_PROTOCOL, scene=scene, seed=int(seed), frames=frames)
+    return open_dataset("sim", {**SIM_PROTOCOL, "scene": scene, "seed": int(seed), "frames": frames})
 
 
 def _labelled(ds: Dataset, folder: Path, settings: LabelSettings) -> LabelStore:
@@ -135,8 +135,9 @@ def _class_weights(stores: list[tuple[Dataset, LabelStore]]) -> np.ndarray:
     return w / w.mean()
 
 
-def augment_heading(points: np.ndarray, rng: np.random.Generator, heading: str = "jitter",
-                    jitter_deg: float = 10.0) -> np.ndarray:
+def augment_heading(
+    points: np.ndarray, rng: np.random.Generator, heading: str = "jitter", jitter_deg: float = 10.0
+) -> np.ndarray:
     """A mirror across x-z half the time and a rotation about the sensor's z axis: within
     ``±jitter_deg`` (``"jitter"``), any (``"full"``), or none (``"none"``, no mirror either).
 
@@ -165,8 +166,9 @@ def _forward(net, pts: np.ndarray, feats: np.ndarray, device, rng: np.random.Gen
     return net(to_torch([prepare(pts, cfg.k, cfg.ratio, len(cfg.d_out), rng)], [feats], device), codeword)
 
 
-def evaluate_scans(net, scans: list[tuple[np.ndarray, np.ndarray, np.ndarray]], device,
-                   seed: int = 0) -> dict[str, float]:
+def evaluate_scans(
+    net, scans: list[tuple[np.ndarray, np.ndarray, np.ndarray]], device, seed: int = 0
+) -> dict[str, float]:
     """On whole (sampled) scans: the AUC of P(high) among the truly non-ground points, its
     precision over the base-rate share of best scores, per-class accuracy (recall) and IoU."""
     import torch
@@ -207,13 +209,23 @@ def gfa_ablation(net, scans: list[tuple[np.ndarray, np.ndarray, np.ndarray]], de
     net.eval()
     with torch.no_grad():
         codes = [_forward(net, p, f, device, np.random.default_rng([seed, k]))[1] for k, (p, f, _) in enumerate(scans)]
-        acc: dict[str, list] = {"own_auc": [], "swap_auc": [], "zero_auc": [], "swap_changed": [],
-                                "zero_changed": [], "swap_dp": [], "zero_dp": []}
+        acc: dict[str, list] = {
+            "own_auc": [],
+            "swap_auc": [],
+            "zero_auc": [],
+            "swap_changed": [],
+            "zero_changed": [],
+            "swap_dp": [],
+            "zero_dp": [],
+        }
         for k, (pts, feats, lab) in enumerate(scans):
             rest = lab != GROUND
             outs = {}
-            for case, code in (("own", None), ("swap", codes[(k + len(scans) // 2 + 1) % len(scans)]),
-                               ("zero", torch.zeros_like(codes[k]))):
+            for case, code in (
+                ("own", None),
+                ("swap", codes[(k + len(scans) // 2 + 1) % len(scans)]),
+                ("zero", torch.zeros_like(codes[k])),
+            ):
                 logits, _ = _forward(net, pts, feats, device, np.random.default_rng([seed, k]), code)
                 outs[case] = net.probabilities(logits[0]).cpu().numpy()
                 acc[f"{case}_auc"].append(roc_auc(outs[case][rest, HIGH], lab[rest] == HIGH))
@@ -228,7 +240,7 @@ def _middle(cfg: TrainConfig, ds: Dataset) -> list[int]:
     """The frames a drive trains on: each day's drive without ``margin`` scans at either end,
     whose counts are cut short by where the sequence stops (a point behind the first pose is
     seen by few poses because the drive ends, not because of what it is) -- no scan shows that."""
-    return [i for t in ds.traversals() for i in t[cfg.margin: len(t) - cfg.margin]]
+    return [i for t in ds.traversals() for i in t[cfg.margin : len(t) - cfg.margin]]
 
 
 def _val_scans(cfg: TrainConfig, out: Path, settings: LabelSettings) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
@@ -237,7 +249,7 @@ def _val_scans(cfg: TrainConfig, out: Path, settings: LabelSettings) -> list[tup
         ds = _sim(drive, cfg.frames)
         store = _labelled(ds, out / "labels" / drive.replace(":", "-"), settings)
         for t in ds.traversals():
-            middle = t[cfg.margin: len(t) - cfg.margin]
+            middle = t[cfg.margin : len(t) - cfg.margin]
             for j in np.linspace(0, len(middle) - 1, cfg.val_frames).round().astype(int):
                 i = middle[j]
                 f = ds[i]
@@ -364,10 +376,15 @@ def train(cfg: TrainConfig, progress: Callable[[str, int, int], None] | None = N
             "elapsed_s": time.perf_counter() - t_start,
             "labels_s": labels_s,
             "lr": opt.param_groups[0]["lr"],
-            **{k: float(np.mean([p.get(k, math.nan) for p in losses])) if losses else math.nan
-               for k in ("loss", "label", "global", "variance")},
-            **{f"raw_{k}": v for k, v in evaluate_scans(net, val, device).items()
-               if k in ("auc_high", "top_k_precision")},
+            **{
+                k: float(np.mean([p.get(k, math.nan) for p in losses])) if losses else math.nan
+                for k in ("loss", "label", "global", "variance")
+            },
+            **{
+                f"raw_{k}": v
+                for k, v in evaluate_scans(net, val, device).items()
+                if k in ("auc_high", "top_k_precision")
+            },
             **evaluate_scans(averaged.model, val, device),
             **gfa_ablation(averaged.model, val, device),
         }

@@ -133,7 +133,7 @@ class VSGPCodec(RepresentationCodec):
         except torch.linalg.LinAlgError as exc:
             raise PayloadError(f"vsgp payload: inducing points do not define a valid GP ({exc})") from None
         self.last_timings = timings
-        return checked_cloud(pts, self.name)
+        return checked_cloud(pts, self.name, max_range=sensor.max_range)  # no point past its sensor's reach
 
 
 @hookimpl
