@@ -2,6 +2,8 @@
 
     python tools/poconet_table.py [--seeds 100 101 102 103 104] [--frames 30] [--ratios 0.0833 0.0417]
         [--curve-ratios 0.0833] [--json OUT] [--store PATH]
+    python tools/poconet_table.py --seeds 101 --no-curve --no-controls --no-diagnose  # headline rows only
+    python tools/poconet_table.py --seeds 100 101 --from-store  # one table of seeds run apart
     python tools/poconet_table.py --scene indoor --seeds 100 --no-curve     # another scene
     python tools/poconet_table.py --sensor os1-128 --seeds 100 --no-curve   # ... or another sensor
 
@@ -64,13 +66,15 @@ def one_seed(args, seed: int, ratio: float, curve: bool) -> list[dict]:
     tag = f"{args.scene}-{args.sensor}-{args.frames}-seed-{seed}"
     labels = {d: str(args.work / f"{tag}-{d}") for d in ("mapping", "all")}
     for d, folder in labels.items():
-        if not (Path(folder) / "labels.json").exists():
+        if not args.from_store and not (Path(folder) / "labels.json").exists():
             lwbench("label", "sim", "--out", folder, *ds, "--counts-from", d)
     common = ["run", "--dataset", "sim", *ds, "--seed", str(seed), "--store", str(args.store), "--columns", "ate_rmse"]
     main = [*common]
     for s in MAIN:
         main += ["--codec", s] + ([] if s == "raw" else ["--param", f"{s}.ratio={ratio}"])
-    main += ["--param", f"poconet.weights={args.weights}", "--param", "poconet.score=p_high,random"]
+    main += ["--param", f"poconet.weights={args.weights}"]
+    if args.controls:
+        main += ["--param", "poconet.score=p_high,random"]
     main += [
         "--codec",
         "oracle",
@@ -79,19 +83,21 @@ def one_seed(args, seed: int, ratio: float, curve: bool) -> list[dict]:
         "--param",
         f"oracle.labels={labels['mapping']},{labels['all']}",
     ]
-    lwbench(*main)
-    lwbench(
-        *common,
-        "--codec",
-        "poconet",
-        "--param",
-        f"poconet.ratio={ratio}",
-        "--param",
-        f"poconet.weights={args.weights}",
-        "--param",
-        "poconet.cell=0",
-    )
-    if curve:
+    if not args.from_store:
+        lwbench(*main)
+    if args.controls and not args.from_store:
+        lwbench(
+            *common,
+            "--codec",
+            "poconet",
+            "--param",
+            f"poconet.ratio={ratio}",
+            "--param",
+            f"poconet.weights={args.weights}",
+            "--param",
+            "poconet.cell=0",
+        )
+    if curve and not args.from_store:
         ps = ",".join(f"{p:g}" for p in args.precisions)
         lwbench(
             *common,
@@ -129,9 +135,9 @@ def one_seed(args, seed: int, ratio: float, curve: bool) -> list[dict]:
         if e["codec"] == "poconet" and e["params"].get("weights") != args.weights:
             continue
         rows.append({**e, "row": row_name(e, labels), "seed": seed})
-    if "poconet" in MAIN:
+    if args.diagnose:
         out = args.work / f"{tag}-diagnose-{ratio:.4f}.json"
-        if not out.exists():
+        if not out.exists() and not args.from_store:
             lwbench(
                 "diagnose",
                 "poconet",
@@ -151,7 +157,8 @@ def one_seed(args, seed: int, ratio: float, curve: bool) -> list[dict]:
                 "--json",
                 str(out),
             )
-        rows.append({"row": "poconet diagnostics", "seed": seed, **json.loads(out.read_text())["labels"]})
+        if out.exists():
+            rows.append({"row": "poconet diagnostics", "seed": seed, **json.loads(out.read_text())["labels"]})
     return rows
 
 
@@ -232,6 +239,23 @@ def main() -> None:
     ap.add_argument("--ratios", type=float, nargs="+", default=[1 / 12, 1 / 24])
     ap.add_argument("--curve-ratios", type=float, nargs="*", default=[1 / 12])
     ap.add_argument("--no-curve", action="store_true")
+    ap.add_argument(
+        "--no-controls",
+        dest="controls",
+        action="store_false",
+        help="skip poconet's two controls (score=random, cell=0): about a quarter of a seed's time",
+    )
+    ap.add_argument(
+        "--from-store",
+        action="store_true",
+        help="run nothing: the table of what --store (and --work's diagnostics) already hold, e.g. seeds run apart",
+    )
+    ap.add_argument(
+        "--no-diagnose",
+        dest="diagnose",
+        action="store_false",
+        help="skip lwbench diagnose (the network's AUC and precision; a fifth of a seed's time)",
+    )
     ap.add_argument("--precisions", type=float, nargs="+", default=[0.2, 0.4, 0.6, 0.8])
     ap.add_argument("--store", type=Path, default=Path("lwbench-results/poconet_table.sqlite"))
     ap.add_argument("--work", type=Path, default=Path("lwbench-results/poconet_labels"))
