@@ -99,30 +99,20 @@ def one_seed(args, seed: int, ratio: float, curve: bool) -> list[dict]:
         )
     if curve and not args.from_store:
         ps = ",".join(f"{p:g}" for p in args.precisions)
-        lwbench(
-            *common,
-            "--codec",
-            "oracle",
-            "--param",
-            f"oracle.ratio={ratio}",
-            "--param",
-            f"oracle.labels={labels['mapping']}",
-            "--param",
-            f"oracle.precision={ps}",
-        )
-        lwbench(
-            *common,
-            "--codec",
-            "oracle",
-            "--param",
-            f"oracle.ratio={ratio}",
-            "--param",
-            f"oracle.labels={labels['mapping']}",
-            "--param",
-            f"oracle.precision={ps},1",
-            "--param",
-            "oracle.rule=score",
-        )
+        for rule, precisions in (("class", ps), ("score", f"{ps},1")):  # the oracle's rule, poconet's
+            lwbench(
+                *common,
+                "--codec",
+                "oracle",
+                "--param",
+                f"oracle.ratio={ratio}",
+                "--param",
+                f"oracle.labels={labels['mapping']}",
+                "--param",
+                f"oracle.precision={precisions}",
+                "--param",
+                f"oracle.rule={rule}",
+            )
     board = json.loads(lwbench("leaderboard", "--store", str(args.store), "--format", "json"))
     rows = []
     for e in board:
