@@ -68,6 +68,17 @@ from lwbench.params import Param
 from lwbench.payload import Payload
 from lwbench.points import POINT_ENCODINGS, pack_points, unpack_points
 from lwbench.resolve import codec_class, open_dataset
+from lwbench.selector_diagnostics import (
+    LABEL_GROUND,
+    LABEL_HIGH,
+    LABEL_LOW,
+    LabelFolder,
+    noisy_classes,
+    roc_auc,
+    select_by_class,
+    select_by_score,
+    top_k_precision,
+)
 from lwbench.sensor import SENSOR_PRESETS, RangeImage, SensorModel, get_sensor, register_sensor
 from lwbench.version import __version__
 
@@ -148,5 +159,14 @@ __all__ = [
     "WorkerError",
     "write_kitti_sequence",
     "zstd_decompress",
+    "LABEL_GROUND",
+    "LABEL_HIGH",
+    "LABEL_LOW",
+    "LabelFolder",
+    "noisy_classes",
+    "roc_auc",
+    "select_by_class",
+    "select_by_score",
+    "top_k_precision",
     "__version__",
 ]

@@ -52,8 +52,10 @@ def main() -> None:
             out = metric.compute(SequenceEvaluation(ds, idx, decoded, name, p, seed))
             label = name + (f" 1/{round(1 / p['ratio'])}" if "ratio" in p else "")
             results.setdefault(label, []).append(out["ate_rmse"])
-            print(f"| {label} | {seed} | {out['ate_rmse']:.4f} | {out['ate_mean']:.4f} | {out['rot_err_deg']:.3f} | "
-                  f"{out['icp_failures']:.0f} | {out['map_share']:.4f} | {time.time() - t:.0f} |")
+            print(
+                f"| {label} | {seed} | {out['ate_rmse']:.4f} | {out['ate_mean']:.4f} | {out['rot_err_deg']:.3f} | "
+                f"{out['icp_failures']:.0f} | {out['map_share']:.4f} | {time.time() - t:.0f} |"
+            )
     raw = np.array(results["raw"])
     print("\n| codec | ATE rmse mean ± std over seeds | x raw (per seed, mean) |")
     print("|---|---|---|")

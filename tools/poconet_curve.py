@@ -1,11 +1,12 @@
-"""PocoNet's learning curve: loss and held-out per-class accuracy / IoU per epoch, and the
-held-out localization ATE of a few checkpoints.
+"""PocoNet's learning curve: losses, the validation scans' AUC and precision of P(high), IoU,
+the global module's swap / zero ablation per epoch, and the validation drive's ATE of a few
+checkpoints.
 
-    python tools/poconet_curve.py RUN_DIR [--ate-epochs 1 3 5] [--seed 100] [--png docs/poconet_curve.png]
+    python tools/poconet_curve.py RUN_DIR [--ate-epochs 1 4] [--seed 20] [--png docs/poconet_curve.png]
 
 ``RUN_DIR`` is a ``lwbench train poconet --out`` folder (``curve.jsonl``, ``epoch-NNN.pt``). The
-ATE column runs the localization protocol (``tools/poconet_table.py``'s street, one held-out
-seed, budget 1/12) with that epoch's checkpoint.
+ATE column runs the localization protocol on the *validation* seed (20 by default; never a
+Table I seed) at 1/12 with that epoch's checkpoint, next to random on the same drive.
 """
 
 from __future__ import annotations
@@ -14,43 +15,86 @@ import argparse
 import json
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
+PROTOCOL = ("scene=urban", "traversals=2", "noise=0.02", "distortion=true", "frames=30")
 
-def held_out_ate(checkpoint: Path, seed: int, frames: int, store: Path) -> float:
-    """ATE rmse (m) of poconet with ``checkpoint`` on the held-out street."""
-    tool = Path(__file__).with_name("poconet_table.py")
-    res = subprocess.run(
-        [sys.executable, str(tool), "--seeds", str(seed), "--frames", str(frames), "--selectors", "poconet",
-         "--weights", str(checkpoint), "--store", str(store)],
-        capture_output=True, text=True, check=True,
-    )
-    row = next(line for line in res.stdout.splitlines() if line.startswith("| poconet"))
-    return float(row.split("|")[3].split("±")[0])
+
+def validation_ate(checkpoint: Path, seed: int) -> tuple[float, float]:
+    """ATE rmse (m) of poconet with ``checkpoint`` and of random, on the validation street."""
+    with tempfile.TemporaryDirectory() as tmp:
+        store = Path(tmp) / "r.sqlite"
+        ds = [a for p in (*PROTOCOL, f"seed={seed}") for a in ("--dataset-param", p)]
+        subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "lwbench.cli",
+                "run",
+                "--dataset",
+                "sim",
+                *ds,
+                "--seed",
+                str(seed),
+                "--store",
+                str(store),
+                "--codec",
+                "poconet",
+                "--param",
+                "poconet.ratio=0.0833",
+                "--param",
+                f"poconet.weights={checkpoint}",
+                "--codec",
+                "random",
+                "--param",
+                "random.ratio=0.0833",
+            ],
+            capture_output=True,
+            text=True,
+            check=True,
+        )
+        res = subprocess.run(
+            [sys.executable, "-m", "lwbench.cli", "leaderboard", "--store", str(store), "--format", "json"],
+            capture_output=True,
+            text=True,
+            check=True,
+        )
+    board = {e["codec"]: e["ate_rmse"] for e in json.loads(res.stdout)}
+    return board["poconet"], board["random"]
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("run", type=Path)
     ap.add_argument("--ate-epochs", type=int, nargs="*", default=[])
-    ap.add_argument("--seed", type=int, default=100)
-    ap.add_argument("--frames", type=int, default=30)
+    ap.add_argument("--seed", type=int, default=20)
     ap.add_argument("--png", type=Path)
     args = ap.parse_args()
     curve = [json.loads(line) for line in (args.run / "curve.jsonl").read_text().splitlines() if line.strip()]
-    ate = {}
-    for epoch in args.ate_epochs:
-        ckpt = args.run / f"epoch-{epoch:03d}.pt"
-        ate[epoch] = held_out_ate(ckpt, args.seed, args.frames, args.run / f"ate-epoch-{epoch:03d}.sqlite")
-    print("| epoch | steps | minutes | loss | acc high / low / ground | IoU high / low / ground | mIoU | "
-          f"held-out ATE rmse (seed {args.seed}, 1/12) |")
-    print("|---|---|---|---|---|---|---|---|")
+    ate = {e: validation_ate(args.run / f"epoch-{e:03d}.pt", args.seed) for e in args.ate_epochs}
+    print(
+        "| epoch | steps | minutes | loss (label / global) | AUC P(high) | top-k precision | IoU high / low / ground "
+        f"| GFA swap / zero: classes changed, mean abs. change of P(high) | ATE rmse seed {args.seed}, 1/12 "
+        "(poconet / random) |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|")
     for r in curve:
-        acc = " / ".join(f"{r[f'acc_{c}']:.2f}" for c in ("high_priority", "low_priority", "ground"))
         iou = " / ".join(f"{r[f'iou_{c}']:.2f}" for c in ("high_priority", "low_priority", "ground"))
-        a = f"{100 * ate[r['epoch']]:.2f} cm" if r["epoch"] in ate else ""
-        print(f"| {r['epoch']} | {r['steps']} | {r['elapsed_s'] / 60:.1f} | {r['loss']:.3f} | {acc} | {iou} | "
-              f"{r['miou']:.3f} | {a} |")
+        gfa = (
+            (
+                f"{100 * r['gfa_swap_changed']:.2f} % / {100 * r['gfa_zero_changed']:.2f} %, "
+                f"{r['gfa_swap_dp']:.4f} / {r['gfa_zero_dp']:.4f}"
+            )
+            if "gfa_swap_changed" in r
+            else "–"
+        )
+        a = f"{100 * ate[r['epoch']][0]:.2f} / {100 * ate[r['epoch']][1]:.2f} cm" if r["epoch"] in ate else ""
+        auc, top = r.get("auc_high", float("nan")), r.get("top_k_precision", float("nan"))
+        print(
+            f"| {r['epoch']} | {r['steps']} | {r['elapsed_s'] / 60:.1f} | {r['loss']:.4f} ({r['label']:.4f} / "
+            f"{r['global']:.2g}) | {auc:.3f} | {top:.3f} | {iou} | {gfa} | {a} |"
+        )
     if args.png:
         import matplotlib
 
@@ -60,10 +104,10 @@ def main() -> None:
         epochs = [r["epoch"] for r in curve]
         fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 3.6), dpi=110)
         ax1.plot(epochs, [r["loss"] for r in curve], "o-", label="training loss")
-        ax1.set(xlabel="epoch", ylabel="loss", title="training loss (siamese, class-weighted)")
-        for c, style in (("high_priority", "o-"), ("low_priority", "s-"), ("ground", "^-")):
-            ax2.plot(epochs, [r[f"iou_{c}"] for r in curve], style, label=f"IoU {c.replace('_', ' ')}")
-        ax2.plot(epochs, [r["acc_high_priority"] for r in curve], "o--", label="accuracy high priority")
+        ax1.set(xlabel="epoch", ylabel="loss", title="training loss (binary CE + siamese L2)")
+        ax2.plot(epochs, [r["auc_high"] for r in curve], "o-", label="AUC of P(high)")
+        ax2.plot(epochs, [r["top_k_precision"] for r in curve], "s-", label="top-k precision of P(high)")
+        ax2.plot(epochs, [r["iou_ground"] for r in curve], "^-", label="IoU ground")
         ax2.set(xlabel="epoch", ylim=(0, 1), title="validation scans (drive 20, never trained on)")
         ax2.legend(fontsize=8)
         fig.tight_layout()

@@ -1,26 +1,30 @@
 """The ``poconet`` selection codec (the learned selector) and ``oracle`` (the true labels).
 
-Both rank every point by priority class -- high priority first, then ground, then the rest --
-and keep exactly the budget (``ratio`` / ``points``, like every selector), optionally with a
-share of it kept for ground (``ground_share``: the paper keeps "most points marked as high
-priority and some ground points"). The default 0.1 was chosen on the validation drive (seed 20,
-never a Table I seed) with the oracle at 1/12: ground_share 0 / 0.1 / 0.25 / 0.5 gave a tracking
-ATE of 20.8 / 4.3 / 4.6 / 5.2 mm and rotation errors of 0.067 / 0.024 / 0.020 / 0.020 deg (raw
-16.0 mm, 0.012 deg; random 19.3 mm): with no ground kept, ICP has almost nothing that fixes
-height, roll and pitch. Within a class the order is a seeded random one (the class is the
-label; a class's points are equal): ordering by the network's probability instead keeps one
-patch, because the probability is smooth in space -- measured on the KITTI frame, an early
-checkpoint's top 10,389 high-priority points all lay in one 15 m sector, where a random order
-spreads them over every part of the scan the network marks. Deterministic for a seed.
+``poconet`` keeps exactly the budget (``ratio`` / ``points``, like every selector): a share of
+it (``ground_share``) from the points it predicts are ground -- the paper keeps "most points
+marked as high priority and some ground points" -- and the rest from the other points ranked by
+the network's probability of high priority, with spatial balance
+(:func:`lwbench.selector_diagnostics.balanced_order`: round-robin over ``cell`` x ``cell`` m
+cells, the best-scored point of each cell first). Version 1 took the argmax class and a random
+order inside it: the kept points were only as precise as the argmax (0.26-0.29 on held-out
+scans), and the probability, ranked without balance, keeps one patch (an early checkpoint's top
+10,389 points on the KITTI frame all lay in one 15 m sector). Deterministic for a seed.
+
+The default ``ground_share`` 0.1 was chosen on the validation drive (seed 20, never a Table I
+seed) with the oracle at 1/12: ground_share 0 / 0.1 / 0.25 / 0.5 gave a tracking ATE of 20.8 /
+4.3 / 4.6 / 5.2 mm (raw 16.0 mm, random 19.3 mm): with no ground kept, ICP has almost nothing
+that fixes height, roll and pitch.
 
 ``poconet`` runs the network on at most ``points_in`` points of the scan (a seeded random
 sample, RandLA-Net's own sampling) and carries each prediction to the other points by nearest
 neighbour, as RandLA-Net does at test time: the first layer's 16-neighbour encoding is the cost,
 and a 120k-point KITTI scan holds ~4x the points its geometry needs for a priority class.
 
-``oracle`` reads labels written by ``lwbench label`` (``oracle.labels=DIR``): what the network
-learns toward, computed with the whole sequence and its ground truth -- an upper bound no
-single-scan method can reach, and a row no paper shows.
+``oracle`` reads labels written by ``lwbench label`` (``oracle.labels=DIR``) and keeps them by
+:func:`lwbench.selector_diagnostics.select_by_class` (the ground quota, high priority, ground,
+the rest; random inside a class). ``oracle.precision=p`` is the *noisy oracle*: the same rule on
+labels whose high-priority set is corrupted to precision ``p``
+(:func:`lwbench.selector_diagnostics.noisy_classes`), the curve ``lwbench diagnose`` draws.
 """
 
 from __future__ import annotations
@@ -36,33 +40,30 @@ from lwbench import (
     DEVICE_PARAM,
     DataFormatError,
     Frame,
+    LabelFolder,
     Param,
     ParameterError,
     SelectionCodec,
+    noisy_classes,
     resolve_device,
+    select_by_class,
+    select_by_score,
 )
+from lwbench import LABEL_HIGH as HIGH
 
-from .labels import GROUND, HIGH, LOW, LabelStore
-
-__all__ = ["PocoNetSelector", "OracleSelector", "load_checkpoint", "SHIPPED_WEIGHTS", "CHECKPOINT_FORMAT"]
+__all__ = [
+    "PocoNetSelector",
+    "OracleSelector",
+    "load_checkpoint",
+    "select_by_class",
+    "select_by_score",
+    "SHIPPED_WEIGHTS",
+    "CHECKPOINT_FORMAT",
+]
 
 GROUND_SHARE = Param("ground_share", "float", 0.1, "share of the budget kept for ground points", low=0.0, high=1.0)
 SHIPPED_WEIGHTS = Path(__file__).with_name("weights") / "poconet_sim_urban.pt"
 CHECKPOINT_FORMAT = "lwbench-poconet"
-
-
-def select_by_class(cls: np.ndarray, k: int, seed: int, index: int, ground_share: float = 0.0) -> np.ndarray:
-    """The budget by class: high priority, then ground, then the rest, with ``ground_share`` of
-    the budget kept for ground points ("most points marked as high priority and some ground
-    points", §III-A); a seeded random order within a class where its quota runs out."""
-    k = int(min(k, len(cls)))
-    order = np.random.default_rng([seed, index, 1]).permutation(len(cls))
-    high, ground, rest = (order[cls[order] == c] for c in (HIGH, GROUND, LOW))
-    reserved = min(len(ground), round(ground_share * k))
-    n_high = min(len(high), k - reserved)
-    n_ground = min(len(ground), k - n_high)
-    keep = np.concatenate([high[:n_high], ground[:n_ground], rest[: k - n_high - n_ground]])
-    return np.sort(keep).astype(np.int64)
 
 
 @functools.lru_cache(maxsize=4)
@@ -83,7 +84,7 @@ def load_checkpoint(path: str, device: str):
         raise DataFormatError(f"poconet: {p} is not a PocoNet checkpoint (format {CHECKPOINT_FORMAT!r} expected)")
     try:
         cfg = ckpt["config"]
-        net = PocoNet(NetConfig(**{**cfg, "d_out": tuple(cfg["d_out"])}))
+        net = PocoNet(NetConfig.from_dict(cfg))
         net.load_state_dict(ckpt["model"])
     except (KeyError, TypeError, RuntimeError) as exc:
         raise DataFormatError(f"poconet: {p} does not match the network ({exc})") from None
@@ -101,17 +102,32 @@ class PocoNetSelector(SelectionCodec):
     """The points PocoNet predicts matter for localization (Cui et al., §III)."""
 
     name = "poconet"
-    version = "1"
-    description = "learned priority classes (RandLA-Net + GFA); keeps high priority, then ground"
+    version = "2"  # 2: ranked by P(high) with spatial balance (1: argmax class, random inside)
+    description = "learned priority (RandLA-Net + GFA): a ground quota, then P(high) with spatial balance"
     supports_gpu = True
     params = (
         *BUDGET_PARAMS,
         Param("weights", "str", "shipped", "checkpoint: 'shipped' (trained on sim urban) or a path"),
-        Param("points_in", "int", None, "the network sees at most this many points of a scan "
-              "(default: the density it was trained at)", low=256),
-        Param("seed", "int", 0, "seed of the input sample, the network's sub-sampling and the order within a class",
-              low=0),
+        Param(
+            "points_in",
+            "int",
+            None,
+            "the network sees at most this many points of a scan (default: the density it was trained at)",
+            low=256,
+        ),
+        Param(
+            "seed", "int", 0, "seed of the input sample, the network's sub-sampling and the order within a class", low=0
+        ),
         GROUND_SHARE,
+        Param("cell", "float", 3.0, "cell size (m) of the spatial balance; 0 = plain P(high) order", low=0.0),
+        Param(
+            "score",
+            "str",
+            "p_high",
+            "what ranks the non-ground points: the network's P(high), or 'random' "
+            "(a control: the same rule without the network's ranking)",
+            choices=("p_high", "random"),
+        ),
         DEVICE_PARAM,
     )
 
@@ -120,7 +136,7 @@ class PocoNetSelector(SelectionCodec):
         return str(SHIPPED_WEIGHTS if w == "shipped" else Path(w).expanduser())
 
     def probabilities(self, frame: Frame) -> np.ndarray:
-        """``(N, 3)`` class probabilities of every point of the scan."""
+        """``(N, 3)`` class probabilities of every point of the scan (low, high, ground)."""
         import torch
         from scipy.spatial import cKDTree
 
@@ -138,41 +154,88 @@ class PocoNetSelector(SelectionCodec):
         pyramid = prepare(pts, cfg.k, cfg.ratio, len(cfg.d_out), rng)
         with torch.no_grad():
             logits, _ = net(to_torch([pyramid], [feats], device))
-        probs = torch.softmax(logits[0], dim=-1).double().cpu().numpy()
+        probs = net.probabilities(logits[0]).double().cpu().numpy()
         if len(pick) == n:
             return probs
         _, nearest = cKDTree(pts).query(frame.points, k=1, workers=-1)
         return probs[nearest]
 
+    def scores(self, frame: Frame) -> np.ndarray:
+        """Per point the probability of high priority (what ``lwbench diagnose`` ranks). Right
+        after :meth:`select` of the same scan, the probabilities it computed (no second pass)."""
+        memo = getattr(self, "_last", None)
+        if memo is not None and memo[0] is frame.points and memo[1] == frame.index:
+            return memo[2][:, HIGH]
+        return self.probabilities(frame)[:, HIGH]
+
     def select(self, frame: Frame) -> np.ndarray:
         k = self.budget(len(frame))
         if k == 0 or len(frame) == 0:
             return np.empty(0, dtype=np.int64)
-        cls = self.probabilities(frame).argmax(axis=1)
-        return select_by_class(cls, k, self.config["seed"], frame.index, self.config["ground_share"])
+        probs = self.probabilities(frame)
+        self._last = (frame.points, frame.index, probs)
+        rng = np.random.default_rng([self.config["seed"], frame.index, 1])
+        score = probs[:, HIGH] if self.config["score"] == "p_high" else rng.random(len(frame))
+        return select_by_score(
+            frame.points, probs.argmax(axis=1), score, k, rng, self.config["ground_share"], self.config["cell"]
+        )
 
 
 class OracleSelector(SelectionCodec):
     """The true labels of the sequence: high priority, then ground, then the rest."""
 
     name = "oracle"
-    version = "1"
+    version = "2"  # 2: precision (the noisy oracle)
     description = "selects by the true PocoNet labels of the sequence (lwbench label): the upper bound"
     needs = "labels written for the sequence by `lwbench label` (oracle.labels=DIR)"
     params = (
         *BUDGET_PARAMS,
         Param("labels", "str", None, "folder written by `lwbench label`"),
-        Param("seed", "int", 0, "seed of the order within a class", low=0),
+        Param("seed", "int", 0, "seed of the order within a class (and of the corruption)", low=0),
+        Param(
+            "precision",
+            "float",
+            None,
+            "noisy oracle: the high-priority set corrupted to this precision "
+            "(same size, the rest truly low points at random)",
+            low=0.0,
+            high=1.0,
+        ),
+        Param(
+            "rule",
+            "str",
+            "class",
+            "'class': ground quota, high, ground, rest; 'score': ground quota, then "
+            "the high-priority marks ranked with spatial balance (poconet's rule)",
+            choices=("class", "score"),
+        ),
+        Param("cell", "float", 3.0, "cell size (m) of the 'score' rule's spatial balance", low=0.0),
         GROUND_SHARE,
     )
 
     def __init__(self, **params: Any) -> None:
         super().__init__(**params)
-        self._store = LabelStore(self.config["labels"]) if self.config["labels"] else None
+        self._labels: LabelFolder | None = None
 
     def select(self, frame: Frame) -> np.ndarray:
-        if self._store is None:
+        if not self.config["labels"]:
             raise ParameterError("oracle: set oracle.labels=DIR (labels written by `lwbench label DATASET --out DIR`)")
+        if self._labels is None:
+            self._labels = LabelFolder(self.config["labels"])
         k = self.budget(len(frame))
-        labels, _ = self._store.read(frame.index, len(frame))
-        return select_by_class(labels, k, self.config["seed"], frame.index, self.config["ground_share"])
+        cls = self._labels.classes(frame.index, len(frame))
+        p = self.config["precision"]
+        rng = np.random.default_rng([self.config["seed"], frame.index, round(1e6 * (1.0 if p is None else p))])
+        if p is not None:
+            cls = noisy_classes(cls, p, rng)
+        if self.config["rule"] == "score":
+            return select_by_score(
+                frame.points,
+                cls,
+                (cls == HIGH).astype(np.float64),
+                k,
+                rng,
+                self.config["ground_share"],
+                self.config["cell"],
+            )
+        return select_by_class(cls, k, self.config["seed"], frame.index, self.config["ground_share"])

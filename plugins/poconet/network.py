@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-__all__ = ["NetConfig", "PocoNet", "siamese_loss"]
+__all__ = ["NetConfig", "PocoNet", "siamese_loss", "variance_loss"]
 
 
 @dataclass(frozen=True)
@@ -42,10 +42,30 @@ class NetConfig:
     ratio: int = 4
     codeword: int = 1024
     classes: int = 3
+    # "sigmoid": one binary output per class, trained with binary cross-entropy (the paper's eq. 6);
+    # "softmax": the 3-class cross-entropy of the first checkpoint (kept loadable).
+    output: str = "softmax"
+    # Where the codeword reaches the points: "bottleneck" (the first checkpoint: concatenated to
+    # the bottleneck points only, raw) or "points" (normalized, at the bottleneck and again at
+    # every point before the head; see GlobalFeatureAttention for why).
+    context: str = "bottleneck"
 
     def as_dict(self) -> dict:
-        return {"in_features": self.in_features, "d_out": list(self.d_out), "k": self.k, "ratio": self.ratio,
-                "codeword": self.codeword, "classes": self.classes}
+        return {
+            "in_features": self.in_features,
+            "d_out": list(self.d_out),
+            "k": self.k,
+            "ratio": self.ratio,
+            "codeword": self.codeword,
+            "classes": self.classes,
+            "output": self.output,
+            "context": self.context,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> NetConfig:
+        """The config a checkpoint stores (older checkpoints lack the newer keys: their defaults)."""
+        return cls(**{**d, "d_out": tuple(d["d_out"])})
 
 
 def _mlp(c_in: int, c_out: int, act: bool = True, norm: bool = True) -> nn.Sequential:
@@ -122,22 +142,35 @@ class DilatedResidualBlock(nn.Module):
 
 
 class GlobalFeatureAttention(nn.Module):
-    def __init__(self, c: int, codeword: int) -> None:
+    """Self-attention over the bottleneck points, ``x ⊕ r``, an MLP and a max-pool: the codeword.
+
+    ``normalize`` (checkpoints with ``context="points"``) ends the codeword with a LayerNorm
+    without gain or bias, so that it has zero mean and unit variance over its channels. Measured
+    reason: with the raw codeword the paper's siamese L2 loss has a free direction -- shrink the
+    codeword, grow the next layer -- and the first checkpoint took it: its final global loss was
+    4.6e-7 and swapping another scan's codeword into it changed 0.0 % of the predicted classes
+    (zeroing it 0.12 %). A normalized codeword cannot shrink; the L2 loss can only make the two
+    samplings' codewords agree, which is what it is for."""
+
+    def __init__(self, c: int, codeword: int, normalize: bool = False) -> None:
         super().__init__()
         self.f = nn.Linear(c, max(1, c // 8), bias=False)
         self.g = nn.Linear(c, max(1, c // 8), bias=False)
         self.h = nn.Linear(c, c, bias=False)
         self.mlp = nn.Sequential(_mlp(2 * c, 64), nn.Linear(64, codeword))
+        self.norm = nn.LayerNorm(codeword, elementwise_affine=False) if normalize else nn.Identity()
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:  # (B, N, C) -> (B, codeword)
         attention = torch.softmax(self.f(x) @ self.g(x).transpose(1, 2), dim=-1)  # (B, N, N)
         r = attention @ self.h(x)
-        return self.mlp(torch.cat([x, r], dim=-1)).max(dim=1).values
+        return self.norm(self.mlp(torch.cat([x, r], dim=-1)).max(dim=1).values)
 
 
 class PocoNet(nn.Module):
     def __init__(self, config: NetConfig = NetConfig()) -> None:
         super().__init__()
+        if config.output not in ("softmax", "sigmoid") or config.context not in ("bottleneck", "points"):
+            raise ValueError(f"PocoNet: unknown output {config.output!r} or context {config.context!r}")
         self.config = config
         d0 = 8
         self.inp = _mlp(config.in_features, d0)
@@ -149,19 +182,28 @@ class PocoNet(nn.Module):
             skips.append(2 * d)
             c = 2 * d
         self.bottleneck = _mlp(c, c)
-        self.gfa = GlobalFeatureAttention(c, config.codeword)
+        at_points = config.context == "points"
+        self.gfa = GlobalFeatureAttention(c, config.codeword, normalize=at_points)
         self.context = _mlp(config.codeword, 32)
         self.decoders = nn.ModuleList()
         c_dec = c + 32
         for skip in reversed([d0, *skips[:-1]]):
             self.decoders.append(_mlp(c_dec + skip, max(skip, 16)))
             c_dec = max(skip, 16)
-        self.head = nn.Sequential(_mlp(c_dec, 32), nn.Dropout(0.3), nn.Linear(32, config.classes))
+        # "points": the codeword again beside every point's own features, as PointNet's
+        # segmentation head concatenates its global feature to each point.
+        self.point_context = _mlp(config.codeword, 16) if at_points else None
+        self.head = nn.Sequential(
+            _mlp(c_dec + (16 if at_points else 0), 32), nn.Dropout(0.3), nn.Linear(32, config.classes)
+        )
 
-    def forward(self, batch: dict[str, list[torch.Tensor] | torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+    def forward(
+        self, batch: dict[str, list[torch.Tensor] | torch.Tensor], codeword: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """``batch``: ``xyz`` / ``neigh`` / ``sub`` / ``interp`` lists per layer and ``features``
         (see :func:`lwbench_plugins.poconet.data.prepare`). Returns per-point class logits
-        ``(B, N, classes)`` and the codeword ``(B, codeword)``."""
+        ``(B, N, classes)`` and the codeword ``(B, codeword)``. A given ``codeword`` replaces the
+        scan's own in the decoder (the swap / zero ablation of the global module)."""
         xyz, neigh, sub, interp = batch["xyz"], batch["neigh"], batch["sub"], batch["interp"]
         x = self.inp(batch["features"])
         skips = [x]
@@ -170,28 +212,68 @@ class PocoNet(nn.Module):
             x = gather(x, sub[layer]).max(dim=2).values  # the sampled points pool their neighbours
             skips.append(x)
         x = self.bottleneck(x)
-        codeword = self.gfa(x)
-        ctx = self.context(codeword).unsqueeze(1).expand(-1, x.shape[1], -1)
+        own = self.gfa(x)
+        used = own if codeword is None else codeword.to(own.dtype).expand_as(own)
+        ctx = self.context(used).unsqueeze(1).expand(-1, x.shape[1], -1)
         x = torch.cat([x, ctx], dim=-1)
         for j, dec in enumerate(self.decoders):
             layer = len(self.encoders) - 1 - j
             up = gather(x, interp[layer]).squeeze(2)  # nearest point of the coarser layer
             x = dec(torch.cat([up, skips[layer]], dim=-1))
-        return self.head(x), codeword
+        if self.point_context is not None:
+            x = torch.cat([x, self.point_context(used).unsqueeze(1).expand(-1, x.shape[1], -1)], dim=-1)
+        return self.head(x), own
+
+    def probabilities(self, logits: torch.Tensor) -> torch.Tensor:
+        """Per-class probabilities of logits: softmax, or one sigmoid per class (binary outputs)."""
+        return torch.sigmoid(logits) if self.config.output == "sigmoid" else torch.softmax(logits, dim=-1)
 
 
 def siamese_loss(
     logits: tuple[torch.Tensor, torch.Tensor],
     codewords: tuple[torch.Tensor, torch.Tensor],
     labels: torch.Tensor,
-    class_weights: torch.Tensor,
+    class_weights: torch.Tensor | None,
     lam: float,
+    binary: bool = False,
 ) -> tuple[torch.Tensor, dict[str, float]]:
-    """``L = L_label + lam * L_global`` (eq. 6-7): class-weighted cross-entropy of both branches
-    (the labels are imbalanced: ~1/12 high priority) and the element-wise L2 distance between
-    the two branches' codewords."""
-    ce = nn.functional.cross_entropy
-    l_label = sum(ce(lg.reshape(-1, lg.shape[-1]), labels.reshape(-1), weight=class_weights) for lg in logits) / 2
+    """``L = L_label + lam * L_global`` (eq. 6-7) over both branches of the siamese pair.
+
+    ``binary`` (the paper's eq. 6): one binary cross-entropy per class against its one-hot
+    target, each point's classes averaged -- a ranking by the high-priority output needs no
+    class weights (the first checkpoint's weighted 3-class cross-entropy, ``binary=False`` with
+    RandLA-Net's ``1/(f + 0.02)`` weights, pushed over-prediction of high priority: 0.26-0.29
+    precision at its argmax). ``L_global``: the element-wise squared L2 distance between the two
+    branches' codewords (mean over channels)."""
+    fn = nn.functional
+    n_cls = logits[0].shape[-1]
+    flat = labels.reshape(-1)
+    if binary:
+        target = fn.one_hot(flat, n_cls).to(logits[0].dtype)
+        w = None if class_weights is None else class_weights.to(logits[0].dtype).expand_as(target)
+        l_label = sum(fn.binary_cross_entropy_with_logits(lg.reshape(-1, n_cls), target, weight=w) for lg in logits) / 2
+    else:
+        l_label = sum(fn.cross_entropy(lg.reshape(-1, n_cls), flat, weight=class_weights) for lg in logits) / 2
     l_global = (codewords[0] - codewords[1]).pow(2).mean()
     total = l_label + lam * l_global
     return total, {"loss": float(total.detach()), "label": float(l_label.detach()), "global": float(l_global.detach())}
+
+
+def variance_loss(codeword: torch.Tensor, bank: list[torch.Tensor], floor: float = 0.5) -> torch.Tensor:
+    """VICReg's variance term (Bardes et al., 2022) over the codeword and the ``bank`` of recent
+    scans' codewords (detached): ``mean_c relu(floor - std_c)``, zero while every channel varies
+    across scans by at least ``floor`` (the normalized codeword's channels have unit variance
+    within a scan, so 1 would ask for codewords as different as noise; VICReg's own is 1 on
+    unnormalized embeddings). Not in the paper; measured reason: with the paper's
+    loss alone, on a normalized codeword, the codeword became the same for every scan -- the
+    siamese L2 loss fell to 7e-6 and swapping another scan's codeword changed 0.0 % of the
+    predicted classes (mean change of P(high) 6e-6) after 640 steps -- because a constant
+    codeword satisfies the L2 loss exactly. The variance term rules that answer out (the L2
+    loss still asks two samplings of one scan for the same codeword) -- and measured, it made the
+    codewords differ but not the predictions: the decoder learned to ignore them (swap: 0.0 % of
+    classes, mean change of P(high) 1e-4, after 786 steps; docs/poconet.md). Off by default."""
+    if not bank:
+        return codeword.new_zeros(())
+    rows = torch.cat([codeword.reshape(1, -1), *(b.reshape(1, -1) for b in bank)])
+    std = torch.sqrt(rows.var(dim=0) + 1e-4)
+    return torch.relu(floor - std).mean()
