@@ -82,8 +82,8 @@ class VSGPCodec(RepresentationCodec):
     params = (
         Param("num_inducing", "int", None, "inducing points M in all, 3 numbers each in the payload (default: "
               "one per cells_per_point occupied cells of the scan)", low=1, high=MAX_INDUCING),
-        Param("cells_per_point", "float", 90.0, "occupied cells per inducing point when num_inducing is not given "
-              "(90: the paper's M = 500 on the ~45,000 returns of its 10 m tunnel)", low=1.0, high=1e6),
+        Param("cells_per_point", "float", 100.0, "occupied cells per inducing point when num_inducing is not given "
+              "(100: the paper's M = 500 for VLP-16 tunnel scans of up to ~50,000 returns)", low=1.0, high=1e6),
         Param("bytes", "int", None, "payload byte budget: M is the largest that fits (overrides num_inducing)",
               low=64, high=1 << 20),
         Param("tile_points", "int", 128, "inducing points per local GP (azimuth sector of a band of <= 16 "

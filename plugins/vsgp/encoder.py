@@ -53,7 +53,7 @@ FIT_COLUMNS_PER_LS = 6.0
 @dataclass(frozen=True)
 class FitConfig:
     num_inducing: int | None = None
-    cells_per_point: float = 90.0
+    cells_per_point: float = 100.0
     tile_points: int = 128
     adapt: float = 0.7
     noise_std: float = 0.05

@@ -135,9 +135,9 @@ class Tiling:
         return cls(n_beams, n_cols, bands, sectors)
 
 
-#: Tiles one scan may have (each is a GP the decoder factorizes and evaluates in turn): 8x what a
-#: 128-beam scan at ratio 30 takes (~12,000 inducing points, 128 a tile).
-MAX_TILES = 1024
+#: Tiles one scan may have (each is a GP the decoder factorizes and evaluates in turn, ~0.5-1 ms
+#: of bookkeeping each): 2x what a 64-beam scan at 16,000 inducing points takes (124).
+MAX_TILES = 256
 #: The narrowest sector, in columns: a seam's blend takes up to a quarter of it on each side.
 MIN_SECTOR_COLS = 16
 

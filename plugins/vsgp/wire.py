@@ -48,8 +48,9 @@ __all__ = [
 #: 1 MB payload holds at most ~200,000 at 5 bytes each. Each tile's are bounded separately
 #: (:data:`MAX_TILE_INDUCING`), so the decoder's work stays local (decoder.py).
 MAX_INDUCING = 1 << 16
-#: Inducing points of one tile: its M x M factorization and each cell's variance cost M^2.
-MAX_TILE_INDUCING = 2048
+#: Inducing points of one tile: its M x M factorization and each cell's variance cost M^2 (at
+#: 1,024 the factorization alone is a third of the decode budget, decoder.py).
+MAX_TILE_INDUCING = 1024
 BODY_FORMATS = ("float32", "float16", "q16", "q16z")
 TRANSFORMS = ("linear", "inverse")
 AZ_CODES = 1 << 16
