@@ -108,7 +108,7 @@ def test_inverse_occupancy_fits_far_planes_better():
     frame = room_scan(get_sensor("hdl64e"), seed=2, half_extent=(40.0, 25.0, 4.0), noise=0.0)
     linear = range_scores(frame, round_trip(frame, num_inducing=3000)[1])
     inverse = range_scores(frame, round_trip(frame, transform="inverse", num_inducing=3000)[1])
-    assert inverse[0] < 0.7 * linear[0] and inverse[0] < 0.08
+    assert inverse[0] < 0.7 * linear[0] and inverse[0] < 0.1
     assert inverse[1] > 0.9
 
 

@@ -55,9 +55,19 @@ def _load() -> str:
     return "load average " + " / ".join(f"{x:.2f}" for x in os.getloadavg())
 
 
-def measure(frames: list[Frame], params: dict, repeats: int = 1) -> dict[str, float]:
+def codec_class(old: bool) -> type:
+    """This checkout's VSGPCodec, or (``old``) the one of a package ``vsgp_old`` on the path --
+    e.g. main's plugin copied there -- for before/after rows from one process."""
+    if not old:
+        return VSGPCodec
+    import vsgp_old
+
+    return vsgp_old.VSGPCodec
+
+
+def measure(frames: list[Frame], params: dict, repeats: int = 1, old: bool = False) -> dict[str, float]:
     """Median encode/decode seconds (after a warm-up), reference seconds interleaved, scores."""
-    codec = VSGPCodec(**{"device": "cpu", **params})
+    codec = codec_class(old)(**{"device": "cpu", **params})
     codec.decode(codec.encode(frames[0]))  # warm-up: imports, allocator
     enc, dec, refs, rows = [], [], [], []
     for fr in frames:
@@ -96,9 +106,11 @@ def cmd_speed(args: argparse.Namespace) -> None:
     print(_HEAD)
     settings = args.setting or [""]
     for s in settings:
+        old = s.startswith("old:")
+        s = s.removeprefix("old:")
         params = {**args.param, **parse_params([kv for kv in s.split(",") if kv])}
-        r = measure(frames, params, args.repeats)
-        print(_row(s or "defaults", r), flush=True)
+        r = measure(frames, params, args.repeats, old)
+        print(_row(("main: " if old else "") + (s or "defaults"), r), flush=True)
     print(f"\n{_load()}")
 
 
@@ -199,7 +211,7 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=1, help="speed: best of this many calls per frame")
     ap.add_argument("--param", action="append", default=[], metavar="KEY=VALUE")
     ap.add_argument("--setting", action="append", default=[], metavar="K=V,K=V",
-                    help="speed: one row per setting (repeatable)")
+                    help="speed: one row per setting (repeatable); 'old:K=V' measures package vsgp_old's codec")
     ap.add_argument("--m", type=int, nargs="+", default=[200, 300, 400, 500, 600])
     ap.add_argument("--vsgp", action="append", default=[], metavar="KEY=V1,V2")
     ap.add_argument("--rangeimage", action="append", default=[], metavar="KEY=V1,V2")

@@ -37,22 +37,26 @@ from .tiles import gather_points, tile_members
 from .wire import Body
 
 __all__ = ["DecodeConfig", "DecodePlan", "plan_decode", "auto_stride", "variance_mask", "reconstruct",
-           "query_rows", "FLOPS_PER_UNIT"]
+           "query_rows", "FLOPS_PER_UNIT", "WORK_BUDGET", "fits_exactly", "decodable"]
 
 #: Multiply-adds of a triangular solve or factorization that cost as much as one kernel entry
 #: (an RQ transform with a log and an exp, the work unit of ``lwbench.MAX_WORK``): measured here
 #: with one thread, a float64 entry 3.6 ns, a solve's multiply-add 0.04-0.05 ns (M = 128-512).
 FLOPS_PER_UNIT = 64
 #: The variance is evaluated on every this-many-th column the mean is (see plan_decode).
-VAR_STRIDE_FACTOR = 3
-#: The work one decode may take, in kernel entries: ``lwbench.MAX_WORK``. Measured here (one
-#: thread, shared machine): 3-9 ns of CPU per unit on real payloads (0.39 s for 9.4e7 units:
-#: KITTI 00 frame 0 at 16,000 inducing points); the hand-made worst payloads the bounds admit
-#: (tools/vsgp_fuzz.py --worst) take at most ~0.5 s -- under the fuzz contract's 1 s.
-WORK_BUDGET = MAX_WORK
-#: Multiply-adds of a small Cholesky factorization per work unit: slower per multiply-add than a
-#: solve (0.17 ns at M = 128, 0.05-0.09 ns at M = 260-512, measured with the solves above).
-CHOL_FLOPS_PER_UNIT = 16
+VAR_STRIDE_FACTOR = 4
+#: Work units of a kernel entry with ``alpha = 1`` (a reciprocal instead of a log and an exp):
+#: 0.84 ns against 3.6 ns measured (float64, one thread).
+RECIPROCAL_ENTRY = 0.25
+#: The work one decode may take, in kernel entries: 1.25 x ``lwbench.MAX_WORK``. Measured here
+#: (one thread, shared machine): 3-9 ns of CPU per unit on real payloads (0.39 s for 9.4e7
+#: units: KITTI 00 frame 0 at 16,000 inducing points); the hand-made worst payloads the bounds
+#: admit (tools/vsgp_fuzz.py --worst) stay near half a second -- under the fuzz contract's 1 s.
+WORK_BUDGET = 5 * MAX_WORK // 4
+#: Multiply-adds of a tile's Cholesky factorization and solve per work unit: measured 0.21 /
+#: 0.14 / 0.10 / 0.08 ns a multiply-add at M = 128 / 256 / 512 / 1024 (the per-tile units below
+#: cover the small-M overhead).
+CHOL_FLOPS_PER_UNIT = 32
 #: Units each tile costs whatever its size (its Python bookkeeping, ~0.5-1 ms measured): a payload of 1,024
 #: empty tiles is bounded too.
 TILE_UNITS = 100_000
@@ -82,6 +86,7 @@ class DecodePlan:
     tiles: list[TilePlan]
     work: int
     strides: list[int]
+    factor: int  # how much the automatic strides were widened to fit the budget (1: not at all)
 
 
 def query_rows(sensor: SensorModel, upsample: int) -> tuple[np.ndarray, np.ndarray]:
@@ -140,9 +145,10 @@ def plan_decode(body: Body, sensor: SensorModel, cfg: DecodeConfig) -> DecodePla
         rows = np.flatnonzero((beam_of >= r0) & (beam_of < r1))
         cols = _tile_columns(tiling, sector, widths[t], u)
         m_t = len(tile_members(body, sensor, pts, t))
-        fixed += TILE_UNITS + m_t**3 // (3 * CHOL_FLOPS_PER_UNIT) + len(rows) * len(cols)
+        entry = RECIPROCAL_ENTRY if tile.hyper[2] == 1.0 else 1.0
+        fixed += TILE_UNITS + int(entry * m_t * m_t) + m_t**3 // (3 * CHOL_FLOPS_PER_UNIT) + len(rows) * len(cols)
         base.append(cfg.stride if cfg.stride > 0 else auto_stride(Hyper(*tile.hyper), fine_step))
-        layouts.append((rows, cols, m_t))
+        layouts.append((rows, cols, m_t, entry))
     every = 1 if cfg.stride > 0 else VAR_STRIDE_FACTOR
 
     def sets(n: int, stride: int) -> tuple[np.ndarray, np.ndarray]:
@@ -153,21 +159,21 @@ def plan_decode(body: Body, sensor: SensorModel, cfg: DecodeConfig) -> DecodePla
 
     def work(factor: int) -> int:
         total = fixed
-        for (rows, cols, m_t), s in zip(layouts, base, strict=True):
+        for (rows, cols, m_t, entry), s in zip(layouts, base, strict=True):
             mean_at, var_at = sets(len(cols), s * factor)
-            total += len(rows) * (len(mean_at) * m_t + len(var_at) * (m_t * m_t) // FLOPS_PER_UNIT)
+            total += len(rows) * (int(entry * len(mean_at) * m_t) + len(var_at) * (m_t * m_t) // FLOPS_PER_UNIT)
         return total
 
     factor = 1
-    while work(factor) > WORK_BUDGET and cfg.stride == 0 and any(s * factor < len(c) for (_, c, _), s in
-                                                             zip(layouts, base, strict=True)):
+    while work(factor) > WORK_BUDGET and cfg.stride == 0 and any(s * factor < len(c) for (_, c, _, _), s in
+                                                                 zip(layouts, base, strict=True)):
         factor *= 2
     total = work(factor)
     if total > WORK_BUDGET:
         raise PayloadError(f"vsgp payload: the decode grid's kernel would take {total:,} evaluations, "
                            f"more than {WORK_BUDGET:,}")
     plans, strides = [], []
-    for t, ((rows, cols, _), s) in enumerate(zip(layouts, base, strict=True)):
+    for t, ((rows, cols, _, _), s) in enumerate(zip(layouts, base, strict=True)):
         stride = min(max(1, len(cols)), s * factor)
         band, sector = tiling.tile(t)
         c0, c1 = tiling.sector_cols(sector)
@@ -175,7 +181,7 @@ def plan_decode(body: Body, sensor: SensorModel, cfg: DecodeConfig) -> DecodePla
         mean_at, var_at = sets(len(cols), stride)
         plans.append(TilePlan(rows, cols, mean_at, var_at, w))
         strides.append(stride)
-    return DecodePlan(plans, total, strides)
+    return DecodePlan(plans, total, strides, factor)
 
 
 def _interpolate(values: np.ndarray, eval_idx: np.ndarray, n: int, cubic: bool) -> np.ndarray:
@@ -258,6 +264,14 @@ def reconstruct(body: Body, sensor: SensorModel, cfg: DecodeConfig, device: torc
         timings["predict"] = t1 - t0
         timings["sampling"] = time.perf_counter() - t1
     return pts.astype(np.float32)
+
+
+def fits_exactly(body: Body, sensor: SensorModel) -> bool:
+    """Whether the default decoder takes this body at its automatic strides (not widened)."""
+    try:
+        return plan_decode(body, sensor, DecodeConfig()).factor == 1 if body.num_inducing else True
+    except PayloadError:
+        return False
 
 
 def decodable(body: Body, sensor: SensorModel, cfg: DecodeConfig | None = None) -> int:

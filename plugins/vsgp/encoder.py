@@ -44,6 +44,8 @@ __all__ = [
 
 # Azimuth lengthscale / mean inducing spacing along a beam (sweep in docs/vsgp.md).
 LS_FACTOR_AZ = 1.5
+#: The smallest tiles ``_layout`` shrinks to (points a tile, before halos).
+MIN_TILE_POINTS = 16
 #: Fit bins per azimuth lengthscale: q(u) changes over a lengthscale, and a bin carries the sums
 #: of every cell in it (:func:`_tile_bins`), so a few bins per lengthscale lose nothing: sim
 #: tunnel, 50 frames, 12 / 8 / 6 bins a lengthscale: 8.53 / 8.53 / 8.54 cm RMSD.
@@ -255,9 +257,8 @@ def _noise_var(scan: _Scan, core: np.ndarray, cfg: FitConfig, r_oc: float) -> fl
     return (cfg.noise_std / r_med**2) ** 2
 
 
-def _layout_tile(scan: _Scan, tiling: Tiling, t: int, m_t: int, cfg: FitConfig, r_oc: float,
-                 device: torch.device, warm: Hyper | None, refine_s: list[float]) -> tuple[TileModel, int, list[float]]:
-    """Phase 1 of a tile: its offset, inducing layout and hyper-parameters (refined if asked)."""
+def _layout_tile(scan: _Scan, tiling: Tiling, t: int, m_t: int, cfg: FitConfig, r_oc: float) -> TileModel:
+    """Phase 1 of a tile: its offset, inducing layout and sensor-derived hyper-parameters."""
     band, sector = tiling.tile(t)
     r0, r1 = tiling.band_rows(band)
     c0, c1 = tiling.sector_cols(sector)
@@ -265,29 +266,67 @@ def _layout_tile(scan: _Scan, tiling: Tiling, t: int, m_t: int, cfg: FitConfig, 
     f_core = scan.f[r0:r1, c0:c1][occ]
     offset = float(np.float32(f_core.mean())) if cfg.center and len(f_core) else 0.0
     rows, colpos = layout_inducing(occ, scan.w[r0:r1, c0:c1], m_t)
-    rows = rows + r0
     az_code = quantize_azimuth(scan.col_az[0] + (colpos + c0) * scan.sensor.azimuth_step_rad)
     noise = _noise_var(scan, scan.r[r0:r1, c0:c1][occ], cfg, r_oc)
     h = initial_hyper(scan.sensor, (r0, r1), len(f_core), max(1, len(rows)), f_core - offset, noise)
-    steps_run, bounds = 0, []
-    if cfg.steps > 0 and len(f_core) > len(rows) > 0:
-        from .learn import refine
+    return TileModel(az_code, rows + r0, np.zeros(len(rows)), tuple(h.as_list()), offset)
 
-        z = torch.as_tensor(np.stack([dequantize_azimuth(az_code), scan.row_el[rows]], axis=1),
-                            dtype=torch.float64, device=device)
-        rr, cc = np.nonzero(occ)
-        rng = np.random.default_rng([cfg.seed, t])
-        sub = np.sort(rng.choice(len(rr), size=min(cfg.subsample, len(rr)), replace=False))
-        x = torch.as_tensor(np.stack([scan.col_az[cc[sub] + c0], scan.row_el[rr[sub] + r0]], axis=1),
-                            dtype=torch.float64, device=device)
-        y = torch.as_tensor(f_core[sub] - offset, dtype=torch.float64, device=device)
-        t_refine = time.perf_counter()
-        with torch.enable_grad():
-            h, z, bounds = refine(x, y, z, warm if warm is not None else h, cfg)
-        refine_s[0] += time.perf_counter() - t_refine
-        az_code = quantize_azimuth(z[:, 0].cpu().numpy())
-        steps_run = max(0, len(bounds) - 1)
-    return TileModel(az_code, rows, np.zeros(len(rows)), tuple(h.as_list()), offset), steps_run, bounds
+
+def _refine_tile(scan: _Scan, tiling: Tiling, t: int, tile: TileModel, cfg: FitConfig, device: torch.device,
+                 warm: Hyper | None) -> tuple[int, list[float]]:
+    """Hyper-parameter steps on the collapsed bound (``steps > 0``), in place on ``tile``."""
+    band, sector = tiling.tile(t)
+    r0, r1 = tiling.band_rows(band)
+    c0, c1 = tiling.sector_cols(sector)
+    occ = scan.occ[r0:r1, c0:c1]
+    f_core = scan.f[r0:r1, c0:c1][occ]
+    if cfg.steps == 0 or not len(f_core) > len(tile.beam) > 0:
+        return 0, []
+    from .learn import refine
+
+    z = torch.as_tensor(np.stack([dequantize_azimuth(tile.az_code), scan.row_el[tile.beam]], axis=1),
+                        dtype=torch.float64, device=device)
+    rr, cc = np.nonzero(occ)
+    rng = np.random.default_rng([cfg.seed, t])
+    sub = np.sort(rng.choice(len(rr), size=min(cfg.subsample, len(rr)), replace=False))
+    x = torch.as_tensor(np.stack([scan.col_az[cc[sub] + c0], scan.row_el[rr[sub] + r0]], axis=1),
+                        dtype=torch.float64, device=device)
+    y = torch.as_tensor(f_core[sub] - tile.offset, dtype=torch.float64, device=device)
+    with torch.enable_grad():
+        h, z, bounds = refine(x, y, z, warm if warm is not None else Hyper(*tile.hyper), cfg)
+    tile.hyper = tuple(h.as_list())
+    tile.az_code = quantize_azimuth(z[:, 0].cpu().numpy())
+    return max(0, len(bounds) - 1), bounds
+
+
+def _layout(scan: _Scan, m_req: int, cfg: FitConfig, r_oc: float, phases: np.ndarray) -> Body:
+    """Tiling and every tile's layout (phase 1). Tiles shrink (``tile_points`` halves, down to
+    :data:`MIN_TILE_POINTS`) until the decoder's work budget admits the payload at its automatic
+    strides: a tile's factorization costs its size cubed and each cell's variance its size
+    squared, so on dense scans smaller tiles keep every column of the decode exact (KITTI 00 at
+    16,000 points, 128 a tile: strides 4-8 where the lengthscale is 4-30 columns, 1.43 m RMSD)."""
+    from .decoder import fits_exactly
+
+    sensor = scan.sensor
+    tile_points = cfg.tile_points
+    while True:
+        tiling = Tiling.plan(sensor, max(1, m_req), tile_points)
+        tile_w, tile_n = np.zeros(tiling.n_tiles), np.zeros(tiling.n_tiles, np.int64)
+        for t in range(tiling.n_tiles):
+            band, sector = tiling.tile(t)
+            (r0, r1), (c0, c1) = tiling.band_rows(band), tiling.sector_cols(sector)
+            tile_w[t] = scan.w[r0:r1, c0:c1].sum()
+            tile_n[t] = scan.occ[r0:r1, c0:c1].sum()
+        m = min(m_req, int(tile_n.sum()))
+        quota = tile_w / tile_w.sum() * m if tile_w.sum() > 0 else np.zeros(tiling.n_tiles)
+        alloc = _largest_remainder(quota, tile_n, m)
+        tiles = [_layout_tile(scan, tiling, t, int(alloc[t]), cfg, r_oc) for t in range(tiling.n_tiles)]
+        body = Body(cfg.transform, r_oc, tiling, phases, tiles)
+        smaller = tile_points // 2
+        if (tile_points == 0 or smaller < MIN_TILE_POINTS or fits_exactly(body, sensor)
+                or Tiling.plan(sensor, max(1, m_req), smaller) == tiling):
+            return body
+        tile_points = smaller
 
 
 def _fit_tile(scan: _Scan, body: Body, pts: Points, t: int, cfg: FitConfig, device: torch.device) -> np.ndarray:
@@ -337,33 +376,20 @@ def fit_scan(points: np.ndarray, sensor: SensorModel, cfg: FitConfig, device: to
     if cfg.tile_points == 0 and m_req > MAX_TILE_INDUCING:
         raise ParameterError(f"vsgp: one GP over the whole scan (tile_points=0 / mode=paper) holds at most "
                              f"{MAX_TILE_INDUCING} inducing points, this scan asks for {m_req}")
-    tiling = Tiling.plan(sensor, max(1, m_req), cfg.tile_points)
     w = occupancy_weights(occ, f, cfg.adapt)
     scan = _Scan(sensor, occ, f, np.where(occ, r, 0.0), w, sensor.azimuths_rad(), sensor.elevations_rad)
-    tile_w, tile_n = np.zeros(tiling.n_tiles), np.zeros(tiling.n_tiles, np.int64)
-    for t in range(tiling.n_tiles):
-        band, sector = tiling.tile(t)
-        (r0, r1), (c0, c1) = tiling.band_rows(band), tiling.sector_cols(sector)
-        tile_w[t] = w[r0:r1, c0:c1].sum()
-        tile_n[t] = occ[r0:r1, c0:c1].sum()
-    m = min(m_req, int(tile_n.sum()))
-    quota = tile_w / tile_w.sum() * m if tile_w.sum() > 0 else np.zeros(tiling.n_tiles)
-    alloc = _largest_remainder(quota, tile_n, m)
-    if warm is not None and len(warm) != tiling.n_tiles:
-        warm = None
-    tiles, steps, bounds, refine_s = [], 0, [], [0.0]
     with torch.no_grad():
-        for t in range(tiling.n_tiles):
-            tile, s, b = _layout_tile(scan, tiling, t, int(alloc[t]), cfg, r_oc, device, warm[t] if warm else None,
-                                      refine_s)
-            tiles.append(tile)
-            steps = max(steps, s)
-            bounds += b
+        body = _layout(scan, m_req, cfg, r_oc, phases)
+        t2 = time.perf_counter()
+        if warm is not None and len(warm) != body.tiling.n_tiles:
+            warm = None
+        steps, bounds = 0, []
+        for t, tile in enumerate(body.tiles):
+            s, b = _refine_tile(scan, body.tiling, t, tile, cfg, device, warm[t] if warm else None)
+            steps, bounds = max(steps, s), bounds + b
         t3 = time.perf_counter()
-        body = Body(cfg.transform, r_oc, tiling, phases, tiles)
         pts = gather_points(body, sensor)
-        for t, tile in enumerate(tiles):
+        for t, tile in enumerate(body.tiles):
             tile.value = _fit_tile(scan, body, pts, t, cfg, device)
-    timings = {"projection": t1 - t0, "layout": t3 - t1 - refine_s[0], "refine": refine_s[0],
-               "fit": time.perf_counter() - t3}
+    timings = {"projection": t1 - t0, "layout": t2 - t1, "refine": t3 - t2, "fit": time.perf_counter() - t3}
     return FitResult(body, steps, bounds, timings)

@@ -99,12 +99,12 @@ def rq_tensor(x1: torch.Tensor, x2: torch.Tensor, ls: torch.Tensor, alpha: float
               scale: float | torch.Tensor) -> torch.Tensor:
     """Same kernel with tensor hyper-parameters (differentiable): GPyTorch's
     ``ScaleKernel(RQKernel(ard_num_dims=3))`` on ``(cos az, sin az, el)`` with lengthscales
-    ``(ls_az, ls_az, ls_el)`` (see :func:`chord`), but from exact differences instead of GPyTorch's
-    ``|a|^2 + |b|^2 - 2ab`` expansion, so that ``K_mm`` is accurate enough to factor."""
+    ``(ls_az, ls_az, ls_el)`` (see :func:`chord`), but from the chord's half-angle form instead of
+    GPyTorch's ``|a|^2 + |b|^2 - 2ab`` expansion, so that ``K_mm`` is accurate enough to factor."""
     ls = ls.reshape(-1).to(x1.dtype)
-    da = chord(x1[:, None, 0] - x2[None, :, 0]) / ls[0]
     de = (x1[:, None, 1] - x2[None, :, 1]) / ls[1]
-    d2 = da.square() + de.square() if da.requires_grad else da.square_().add_(de.square_())
+    da2 = chord_sq(x1[:, 0], x2[:, 0]) / ls[0].square()
+    d2 = da2 + de.square() if da2.requires_grad else da2.add_(de.square_())
     if isinstance(alpha, torch.Tensor):
         alpha = alpha.to(x1.dtype)
     if isinstance(scale, torch.Tensor):
