@@ -69,7 +69,7 @@ def measure(frames: list[Frame], params: dict, repeats: int = 1, old: bool = Fal
     """Median encode/decode seconds (after a warm-up), reference seconds interleaved, scores."""
     codec = codec_class(old)(**{"device": "cpu", **params})
     codec.decode(codec.encode(frames[0]))  # warm-up: imports, allocator
-    enc, dec, refs, rows = [], [], [], []
+    enc, dec, refs, rows, stages = [], [], [], [], []
     for fr in frames:
         refs.append(reference_seconds(repeats=1))
         best_e, best_d = np.inf, np.inf
@@ -77,17 +77,25 @@ def measure(frames: list[Frame], params: dict, repeats: int = 1, old: bool = Fal
             t = time.perf_counter()
             data = codec.encode(fr)
             best_e = min(best_e, time.perf_counter() - t)
+            stage = dict(codec.last_timings)
             t = time.perf_counter()
             out = codec.decode(data)
             best_d = min(best_d, time.perf_counter() - t)
+            stage.update(codec.last_timings)
         enc.append(best_e)
         dec.append(best_d)
+        stages.append(stage)
         rows.append((len(data), fr.raw_bytes / len(data), *scores(fr, out)))
     o = np.array(rows)
     ref = float(np.median(refs))
-    return {"ref": ref, "enc": float(np.median(enc)), "dec": float(np.median(dec)), "bytes": o[:, 0].mean(),
+    keys = [k for k in stages[0] if k in _STAGES]
+    return {"stages": {k: float(np.median([st.get(k, np.nan) for st in stages])) for k in keys},
+            "ref": ref, "enc": float(np.median(enc)), "dec": float(np.median(dec)), "bytes": o[:, 0].mean(),
             "ratio": o[:, 1].mean(), "rmsd": float(np.nanmean(o[:, 2])), "rmsd_std": float(np.nanstd(o[:, 2])),
             "coverage": o[:, 3].mean(), "false": o[:, 4].mean(), "worst_cov": o[:, 3].min()}
+
+
+_STAGES = ("projection", "layout", "refine", "fit", "serialize", "parse", "predict", "sampling")
 
 
 def _row(label: str, r: dict[str, float]) -> str:
@@ -105,12 +113,18 @@ def cmd_speed(args: argparse.Namespace) -> None:
     print(f"{args.folder}: {len(frames)} frames, {_load()}\n")
     print(_HEAD)
     settings = args.setting or [""]
+    stages = []
     for s in settings:
         old = s.startswith("old:")
         s = s.removeprefix("old:")
         params = {**args.param, **parse_params([kv for kv in s.split(",") if kv])}
         r = measure(frames, params, args.repeats, old)
         print(_row(("main: " if old else "") + (s or "defaults"), r), flush=True)
+        stages.append((("main: " if old else "") + (s or "defaults"), r))
+    print("\nmedian ms per stage (x reference):\n")
+    for label, r in stages:
+        parts = ", ".join(f"{k} {1000 * v:.1f} ({v / r['ref']:.3f})" for k, v in r["stages"].items())
+        print(f"- {label}: {parts}")
     print(f"\n{_load()}")
 
 
