@@ -4,6 +4,7 @@ This module is the public API. Plugins (including the built-in ones under ``plug
 import only from here.
 """
 
+from lwbench.catalog import SensorCatalog
 from lwbench.codec import BUDGET_PARAMS, Codec, CodecKind, RepresentationCodec, SelectionCodec, top_k
 from lwbench.dataset import Dataset
 from lwbench.deps import import_open3d
@@ -26,75 +27,103 @@ from lwbench.frame import Frame
 from lwbench.hookspecs import hookimpl
 from lwbench.io import SENSOR_FILE, read_kitti_bin, read_point_file, write_kitti_sequence
 from lwbench.limits import (
+    MAX_COORDINATE,
     MAX_GENERATED_POINTS,
     MAX_POINTS,
     MAX_WORK,
+    RANGE_MARGIN,
     check_count,
     check_work,
     checked_cloud,
+    coordinate_bound,
     zstd_decompress,
 )
-from lwbench.metric import HIGHER, LOWER, Evaluation, FrameMetric, MetricId, SequenceEvaluation, SequenceMetric
+from lwbench.metric import (
+    ALL_CURVES,
+    HIGHER,
+    LOWER,
+    METRIC_ROLES,
+    Evaluation,
+    FrameMetric,
+    Guard,
+    MetricId,
+    SequenceEvaluation,
+    SequenceMetric,
+)
+from lwbench.occupancy import OCCUPANCY_PARAMS, OccupancyMap, compare_occupancy, occupied_voxels
 from lwbench.parallel import thread_budget
 from lwbench.params import Param
 from lwbench.payload import Payload
 from lwbench.points import POINT_ENCODINGS, pack_points, unpack_points
+from lwbench.resolve import codec_class, open_dataset
 from lwbench.sensor import SENSOR_PRESETS, RangeImage, SensorModel, get_sensor, register_sensor
-
-__version__ = "0.1.0"
+from lwbench.version import __version__
 
 __all__ = [
+    "ALL_CURVES",
     "BUDGET_PARAMS",
+    "check_count",
+    "check_work",
+    "checked_cloud",
     "Codec",
+    "codec_class",
     "CodecKind",
-    "DEVICE_PARAM",
+    "compare_occupancy",
+    "coordinate_bound",
     "DataFormatError",
-    "DataWarning",
     "Dataset",
+    "DataWarning",
     "DecodeError",
+    "DEVICE_PARAM",
     "Evaluation",
     "Frame",
     "FrameMetric",
+    "get_sensor",
+    "Guard",
     "HIGHER",
+    "hookimpl",
+    "import_open3d",
+    "InvalidFrameError",
     "LOWER",
-    "MetricId",
+    "LwbenchError",
+    "MAX_COORDINATE",
     "MAX_GENERATED_POINTS",
     "MAX_POINTS",
     "MAX_WORK",
-    "InvalidFrameError",
-    "LwbenchError",
+    "METRIC_ROLES",
+    "MetricId",
     "MissingDependencyError",
-    "POINT_ENCODINGS",
+    "OCCUPANCY_PARAMS",
+    "OccupancyMap",
+    "occupied_voxels",
+    "open_dataset",
+    "pack_points",
     "Param",
     "ParameterError",
     "Payload",
     "PayloadError",
     "PluginError",
+    "POINT_ENCODINGS",
+    "RANGE_MARGIN",
     "RangeImage",
+    "read_kitti_bin",
+    "read_point_file",
+    "register_sensor",
     "RepresentationCodec",
-    "SENSOR_FILE",
-    "SENSOR_PRESETS",
+    "resolve_device",
     "SelectionCodec",
     "SelectionError",
+    "SENSOR_FILE",
+    "SENSOR_PRESETS",
+    "SensorCatalog",
     "SensorModel",
     "SequenceEvaluation",
     "SequenceMetric",
     "StoreError",
-    "WorkerError",
-    "check_count",
-    "check_work",
-    "checked_cloud",
-    "get_sensor",
-    "hookimpl",
-    "import_open3d",
-    "pack_points",
-    "read_kitti_bin",
-    "read_point_file",
-    "register_sensor",
-    "resolve_device",
     "thread_budget",
     "top_k",
     "unpack_points",
+    "WorkerError",
     "write_kitti_sequence",
     "zstd_decompress",
     "__version__",

@@ -13,16 +13,17 @@ from __future__ import annotations
 import abc
 from collections.abc import Iterable
 from enum import Enum
-from typing import Any, ClassVar
+from typing import Any, ClassVar, TypeVar
 
 import numpy as np
 
+from lwbench.catalog import SensorCatalog
 from lwbench.errors import ParameterError, PayloadError, SelectionError
 from lwbench.frame import Frame
 from lwbench.params import Param, resolve_params
 from lwbench.payload import Payload
 from lwbench.points import POINT_ENCODINGS, pack_points, unpack_points
-from lwbench.sensor import SensorModel, UnknownSensorError, register_sensor
+from lwbench.sensor import SensorModel, UnknownSensorError, remember_encoded
 
 __all__ = [
     "Codec",
@@ -33,6 +34,9 @@ __all__ = [
     "SelectionError",
     "top_k",
 ]
+
+
+C = TypeVar("C", bound="Codec")
 
 
 class CodecKind(str, Enum):
@@ -100,21 +104,44 @@ class Codec(abc.ABC):
         """Parse and check a payload meant for this codec (raises ``PayloadError``)."""
         return Payload.from_bytes(data, expect_codec=self.name)
 
-    @staticmethod
-    def sensor_meta(sensor: SensorModel) -> dict:
-        """The sensor as a payload names it (a preset or an id: see :meth:`SensorModel.to_wire`).
+    # -- sensors: named in the payload, their tables handed to the decoder (lwbench.catalog) --------
+    @property
+    def sensors(self) -> SensorCatalog:
+        """The sensor tables this instance knows: those it encoded with, and those it was handed
+        (:meth:`use_sensors`). A payload naming a sensor by id decodes only with its table here."""
+        catalog = self.__dict__.get("_sensors")
+        if catalog is None:
+            catalog = self.__dict__["_sensors"] = SensorCatalog()
+        return catalog
 
-        The sensor is also registered in this process, which therefore decodes its own payloads;
-        a receiver in another process learns the table once, from the stream (``sensor.json``)."""
-        register_sensor(sensor)
+    def use_sensors(self: C, sensors: Iterable[SensorModel]) -> C:
+        """Hand this instance (a decoder) the sensors its payloads may name -- what a receiver
+        learns once per stream: the frame's sensor in a run, a stream file's tables in ``lwbench
+        decode``. From then on those (and the ones it encoded with) are *all* it resolves. Returns
+        the codec, so ``MyCodec(**p).use_sensors([s]).decode(data)`` reads."""
+        self.sensors.update(sensors)
+        self.__dict__["_sensors_handed"] = True
+        return self
+
+    def sensor_meta(self, sensor: SensorModel) -> dict:
+        """The sensor as a payload names it (a preset or an id: see :meth:`SensorModel.to_wire`);
+        this instance learns the table, so it decodes its own payloads."""
+        self.sensors.add(sensor)
+        remember_encoded(sensor)
         return sensor.to_wire()
 
-    @classmethod
-    def read_sensor(cls, payload: Payload, key: str = "sensor") -> SensorModel:
-        """The sensor a payload's metadata names under ``key``, or ``PayloadError``."""
-        value = cls.meta_field(payload, key, dict)
+    def read_sensor(self, payload: Payload, key: str = "sensor") -> SensorModel:
+        """The sensor a payload's metadata names under ``key`` (resolved among the tables this
+        instance knows), or ``PayloadError``.
+
+        A decoder that was never handed its sensors (a bare ``MyCodec().decode(data)`` in code
+        written before :meth:`use_sensors`) still finds a sensor an encoder of this process wrote,
+        with a ``DeprecationWarning``; every lwbench receiver hands its sensors, so none of its
+        decodes depends on that."""
+        value = self.meta_field(payload, key, dict)
+        legacy = not self.__dict__.get("_sensors_handed", False)
         try:
-            return SensorModel.from_wire(value)
+            return SensorModel.from_wire(value, self.sensors, legacy=legacy)
         except UnknownSensorError as exc:
             raise PayloadError(f"{payload.codec_id} payload: {exc.args[0]}") from None
         except (KeyError, TypeError, ValueError, OverflowError) as exc:

@@ -138,24 +138,24 @@ def gate_plan(
     sequence_metrics: bool = False,
     registry: Registry | None = None,
 ):
-    """The registry and the one-configuration :class:`~lwbench.run.RunPlan` of a gate."""
-    from lwbench.run import plan_run
+    """The registry and the one-configuration :class:`~lwbench.run.RunPlan` of a gate: a
+    :class:`~lwbench.run.RunRequest` like the command line's, of one codec configuration."""
+    from lwbench.run import DatasetRequest, RunRequest
 
     if isinstance(codec, type):
         registry = _registry_with(codec)
         codec = codec.name
     registry = registry or get_registry()
-    plan = plan_run(
-        registry,
-        dataset=str(dataset) if dataset is not None else None,
-        dataset_params=dict(dataset_params or {}),
-        codecs=[codec],
+    request = RunRequest(
+        datasets=(DatasetRequest(str(dataset) if dataset is not None else None, dict(dataset_params or {})),),
+        codecs=(codec,),
         sweeps={codec: {k: [v] for k, v in (params or {}).items()}},
         frames=frames,
-        seed=seed,
-        metric_params=metric_params,
+        seeds=(seed,),
+        metric_params=metric_params or {},
         sequence_metrics=sequence_metrics,
     )
+    (plan,) = request.plans(registry)
     if len(plan.configs) != 1:
         raise ParameterError("a gate runs exactly one codec configuration")
     return registry, plan

@@ -125,9 +125,10 @@ def _describe_payload(path: Path, registry: Registry) -> dict:
     data = path.read_bytes()
     payload = Payload.from_bytes(data)
     params: dict = {}
+    sensors: list = []
     try:
         source = open_payloads(path)
-        source.register_sensors()
+        sensors = source.sensors()
         if source.header is not None and source.header.codec == payload.codec_id:
             params = dict(source.header.params)
     except LwbenchError:
@@ -146,8 +147,7 @@ def _describe_payload(path: Path, registry: Registry) -> dict:
         info["decoded"] = f"codec {payload.codec_id!r} is not installed"
         return info
     try:
-        codec = cls(**params)
-        points = codec.decode(data)
+        points = cls(**params).use_sensors(sensors).decode(data)
         info.update({f"decoded {k}": v for k, v in _cloud_summary(np.asarray(points)).items()})
     except Exception as exc:  # noqa: BLE001 - report, do not crash, on a payload we cannot decode
         info["decoded"] = f"failed: {type(exc).__name__}: {exc}"

@@ -12,12 +12,13 @@ Rows are never averaged across ways of scoring: when the store holds rows of one
 scored by different metric versions / parameters or produced by different codec releases, only
 the newest scoring is used (the others are counted in ``stale``).
 
-Quality guard: a configuration is *flagged* when it covers less than ``min_coverage`` of the
-original returns, has failed rows, or failed ICP registrations; localization figures are marked
-not meaningful when the *original* scans already fail ICP on this dataset; configurations on
-one dataset that were scored on different frame sets are marked too. Flags travel in every
-format (a ``flags`` list in JSON) and the default order puts unflagged configurations first, so
-a codec cannot rank first by throwing the scan away.
+Quality guard: a configuration is *flagged* when it has failed rows, when it was scored on
+other frames than the rest of its dataset, and when a metric's :class:`~lwbench.metric.Guard`
+says so -- each metric declares what its values mean for the whole configuration (the range
+metric: covering less than 90 % of the returns -- ``--min-coverage`` -- flags it; localization:
+failed ICP registrations flag it, and originals that already fail ICP make its pose figures
+"not meaningful"). Flags travel in every format (a ``flags`` list in JSON) and the default order
+puts unflagged configurations first, so a codec cannot rank first by throwing the scan away.
 """
 
 from __future__ import annotations
@@ -34,35 +35,27 @@ from typing import Any
 import numpy as np
 
 from lwbench.errors import LwbenchError
-from lwbench.metric import HIGHER, LOWER, MetricId
+from lwbench.metric import HIGHER, LOWER, Guard, MetricId
 from lwbench.params import config_label
 from lwbench.store import ResultRow, ResultStore
 
 __all__ = [
-    "DEFAULT_MIN_COVERAGE",
+    "FLAG_TEXT",
     "LeaderboardEntry",
     "build_leaderboard",
     "check_metric_ids",
     "header_name",
+    "headline_metric",
     "table_rows",
     "to_csv",
     "to_json",
     "to_markdown",
 ]
 
-DEFAULT_MIN_COVERAGE = 0.9
-# The localization ids a failing tracking of the *originals* makes meaningless.
-_LOCALIZATION_FLAG_SOURCE = "icp_failures_original"
-_LOCALIZATION_IDS = ("ate_rmse", "ate_mean", "rot_err_deg", "mape", "rpe_trans", "rpe_rot_deg", "icp_failures")
 STATS = ("mean", "std", "median", "p95")
 
-FLAG_TEXT = {
-    "low_coverage": "low coverage",
-    "failed_rows": "failed rows",
-    "icp_failures": "ICP failures",
-    "localization_not_meaningful": "loc. n/m",
-    "frames_differ": "other frames",
-}
+#: The flags the board itself raises (the others come with a metric's Guard, and their text too).
+FLAG_TEXT = {"failed_rows": "failed rows", "frames_differ": "other frames"}
 
 
 @dataclass
@@ -81,6 +74,8 @@ class LeaderboardEntry:
     frame_set: tuple[int, ...] = ()
     swept: tuple[str, ...] = ()  # parameters that take several values among this codec's entries
     evaluations: dict[int, str] = field(default_factory=dict, repr=False)  # frame -> evaluation key
+    voided: set[str] = field(default_factory=set)  # ids whose figures a raised guard makes meaningless
+    flag_texts: dict[str, str] = field(default_factory=dict, repr=False)  # flag -> its text on the board
 
     @property
     def full_label(self) -> str:
@@ -101,15 +96,18 @@ class LeaderboardEntry:
     def value(self, metric: str, stat: str = "mean") -> float | None:
         return self.stats.get(metric, {}).get(stat)
 
-    @property
-    def localization_meaningful(self) -> bool:
-        return "localization_not_meaningful" not in self.flags
-
     def shown(self, metric: str, stat: str = "mean") -> float | None:
-        """The value a table shows: ``None`` for figures flagged not meaningful."""
-        if metric in _LOCALIZATION_IDS and not self.localization_meaningful:
+        """The value a table shows: ``None`` for figures a raised guard made meaningless."""
+        if metric in self.voided:
             return None
         return self.value(metric, stat)
+
+    def flag_text(self, flag: str) -> str:
+        return self.flag_texts.get(flag) or FLAG_TEXT.get(flag, flag)
+
+    @property
+    def flags_text(self) -> str:
+        return ", ".join(self.flag_text(f) for f in self.flags)
 
     def as_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {
@@ -164,16 +162,24 @@ def _newest_scoring(rows: list[ResultRow]) -> tuple[list[ResultRow], int]:
     return kept, stale
 
 
-def _flag(entry: LeaderboardEntry, min_coverage: float) -> None:
-    coverage = entry.value("coverage")
-    if coverage is not None and coverage < min_coverage:
-        entry.flags.append("low_coverage")
+def _guards(info: Mapping[str, MetricId] | None) -> list[tuple[str, Guard]]:
+    """Every declared guard, in board order."""
+    return [(i, m.guard) for i, m in (info or {}).items() if getattr(m, "guard", None) is not None]
+
+
+def _flag(entry: LeaderboardEntry, guards: list[tuple[str, Guard]], limits: Mapping[str, float]) -> None:
+    """Raise the entry's flags: each guard whose limit its mean passes (those that void other ids
+    first: a voided id raises no guard of its own), then failed rows."""
+    raised = set()
+    for metric, guard in sorted(guards, key=lambda ig: not ig[1].voids):
+        limit = limits.get(guard.setting) if guard.setting else None
+        if metric not in entry.voided and guard.raised(entry.value(metric), limit):
+            raised.add(metric)
+            entry.voided |= set(guard.voids)
+            entry.flag_texts[guard.flag] = guard.text
+    entry.flags += [guard.flag for metric, guard in guards if metric in raised]
     if entry.failures:
         entry.flags.append("failed_rows")
-    if (entry.value(_LOCALIZATION_FLAG_SOURCE) or 0) > 0:
-        entry.flags.append("localization_not_meaningful")
-    elif (entry.value("icp_failures") or 0) > 0:
-        entry.flags.append("icp_failures")
 
 
 def _mark_swept_and_frames(entries: list[LeaderboardEntry]) -> None:
@@ -196,6 +202,13 @@ def _mark_swept_and_frames(entries: list[LeaderboardEntry]) -> None:
                 e.flags.append("frames_differ")
 
 
+def headline_metric(info: Mapping[str, MetricId] | None) -> str:
+    """The id a board is sorted by when none is asked for: the one its metric declares the
+    ``headline`` (the compression ratio), else the first id; ``""`` (by label) with none."""
+    info = info or {}
+    return next((i for i, m in info.items() if getattr(m, "headline", False)), next(iter(info), ""))
+
+
 def check_metric_ids(wanted: list[str], available: Mapping[str, Any] | set[str], what: str) -> None:
     """Reject unknown metric ids with the list of valid ones (never a silent empty column)."""
     unknown = [w for w in wanted if w not in available]
@@ -211,13 +224,25 @@ def build_leaderboard(
     descending: bool | None = None,
     info: Mapping[str, MetricId] | None = None,
     keys: set[str] | None = None,
-    min_coverage: float = DEFAULT_MIN_COVERAGE,
+    min_coverage: float | None = None,
     flagged_last: bool = True,
+    limits: Mapping[str, float] | None = None,
 ) -> list[LeaderboardEntry]:
-    """Entries sorted by ``sort`` (best first, in the direction its metric declares; flagged
-    configurations after the others unless ``flagged_last=False``). ``info`` maps metric ids to
-    their declarations (``Registry.metric_info()``); ``keys`` restricts the board to those rows
-    (what one run asked for)."""
+    """Entries sorted by ``sort`` (default: :func:`headline_metric`; best first, in the direction
+    its metric declares; flagged configurations after the others unless ``flagged_last=False``).
+    ``info`` maps metric ids to their declarations (default: the installed metrics',
+    ``Registry.metric_info()``) -- sort directions and the quality guards come from there;
+    ``limits`` replaces guards' limits by their ``setting`` name (``min_coverage=`` is
+    ``limits={"min_coverage": ...}``); ``keys`` restricts the board to those rows (what one run
+    asked for)."""
+    if info is None:
+        from lwbench.registry import get_registry
+
+        info = get_registry().metric_info()
+    limits = dict(limits or {})
+    if min_coverage is not None:
+        limits["min_coverage"] = min_coverage
+    guards = _guards(info)
     groups: dict[tuple, list[ResultRow]] = defaultdict(list)
     labels: dict[str, str] = {}
     for row in store.rows(dataset=dataset):
@@ -254,10 +279,10 @@ def build_leaderboard(
                     per_metric.setdefault(k, [])
         entry.frame_set = tuple(sorted(frames))
         entry.stats = {k: _summarise(v) for k, v in per_metric.items()}
-        _flag(entry, min_coverage)
+        _flag(entry, guards, limits)
         entries.append(entry)
     _mark_swept_and_frames(entries)
-    key = sort or "ratio"
+    key = sort or headline_metric(info)
     if sort is not None and entries:
         check_metric_ids([key], {m for e in entries for m in e.stats} | set(info or {}), "--sort")
     better = (info or {}).get(key)
@@ -291,8 +316,8 @@ def format_value(v: float | None) -> str:
 
 
 def _cell(e: LeaderboardEntry, metric: str, with_std: bool) -> str:
-    if metric in _LOCALIZATION_IDS and not e.localization_meaningful and e.value(metric) is not None:
-        return "n/m"  # the original scans fail ICP here: no codec's figure means anything
+    if metric in e.voided and e.value(metric) is not None:
+        return "n/m"  # a guard says this figure means nothing here (the originals fail ICP, say)
     text = format_value(e.value(metric))
     std = e.value(metric, "std")
     if with_std and std is not None and e.value(metric) is not None:
@@ -332,7 +357,7 @@ def table_rows(
             str(e.frames),
             str(e.failures),
             *(_cell(e, c, with_std) for c in columns),
-            *([", ".join(FLAG_TEXT.get(f, f) for f in e.flags)] if flagged else []),
+            *([e.flags_text] if flagged else []),
         ]
         for e in entries
     ]

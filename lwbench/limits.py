@@ -11,8 +11,9 @@ One helper, :func:`check_count`, so that every decoder -- the built-in ones and 
 author's -- bounds counts the same way and says what was wrong in a :class:`PayloadError`.
 :func:`check_work` bounds the product of counts (a kernel between every grid cell and every
 inducing point), :func:`zstd_decompress` bounds what a zstd section inflates to, and
-:func:`checked_cloud` is the last step of every decoder: a finite float32 ``(M, 3)`` cloud or an
-error.
+:func:`checked_cloud` is the last step of every decoder: a finite float32 ``(M, 3)`` cloud whose
+points lie where a LiDAR can see -- within the payload's sensor's max range (with a stated
+margin) and the decoder's own header bounds, never beyond :data:`MAX_COORDINATE` -- or an error.
 
 The budgets are sized so that a decode of a payload of at most 1 MB stays under about a second
 and 512 MB on a laptop core (the fuzz harness, :mod:`lwbench.fuzz`, checks exactly that).
@@ -29,7 +30,10 @@ __all__ = [
     "MAX_GENERATED_POINTS",
     "MAX_WORK",
     "MAX_INFLATED_BYTES",
+    "MAX_COORDINATE",
+    "RANGE_MARGIN",
     "check_count",
+    "coordinate_bound",
     "check_work",
     "checked_cloud",
     "zstd_decompress",
@@ -46,6 +50,12 @@ MAX_GENERATED_POINTS = 1 << 21
 MAX_WORK = 1 << 26
 #: What a compressed section may inflate to: 256 MiB.
 MAX_INFLATED_BYTES = 1 << 28
+#: No LiDAR return is 10 km away: the farthest a decoded point may lie from the sensor (m) when
+#: nothing tighter is known -- the ceiling of every sensor model's max range (sensor.MAX_RANGE_M).
+MAX_COORDINATE = 10_000.0
+#: How far past its sensor's max range a decoded point may lie: 50 % (a model codec's samples
+#: spill past the farthest return, quantization rounds up; a crafted payload's 1e30 does not).
+RANGE_MARGIN = 0.5
 
 
 def check_count(
@@ -120,11 +130,29 @@ def zstd_decompress(data: bytes, limit: int, what: str, *, exact: bool = False) 
     return b"".join(chunks)
 
 
-def checked_cloud(points: object, codec: str) -> np.ndarray:
+def coordinate_bound(max_range: float | None = None) -> float:
+    """The farthest a decoded point may lie from the sensor (m): the sensor's ``max_range`` plus
+    :data:`RANGE_MARGIN`, at most :data:`MAX_COORDINATE` (which is the bound without a sensor)."""
+    if max_range is None or not np.isfinite(max_range) or max_range <= 0:
+        return MAX_COORDINATE
+    return min(MAX_COORDINATE, float(max_range) * (1 + RANGE_MARGIN))
+
+
+def checked_cloud(
+    points: object,
+    codec: str,
+    *,
+    max_range: float | None = None,
+    bounds: tuple[object, object] | None = None,
+) -> np.ndarray:
     """The last step of a decoder: a finite float32 ``(M, 3)`` array, or :class:`PayloadError`.
 
     Non-finite coordinates from a decoder mean the payload described something no sensor saw;
-    they are refused here, where the payload is at fault, not later by the runner."""
+    so do coordinates no LiDAR returns: a point farther from the sensor than ``max_range`` (the
+    payload's sensor's, plus :data:`RANGE_MARGIN`; :data:`MAX_COORDINATE` when there is no
+    sensor), or outside ``bounds`` (``(low, high)``, each a scalar or an ``(3,)`` corner: a box
+    the decoder's own header promises). They are refused here, where the payload is at fault,
+    not later by the runner."""
     pts = np.asarray(points)
     if pts.ndim != 2 or pts.shape[1] != 3 or not np.issubdtype(pts.dtype, np.floating):
         raise PayloadError(f"{codec} payload: decodes to shape {pts.shape} ({pts.dtype}), not (M, 3) floats")
@@ -133,4 +161,35 @@ def checked_cloud(points: object, codec: str) -> np.ndarray:
     if not np.isfinite(pts).all():
         bad = int((~np.isfinite(pts).all(axis=1)).sum())
         raise PayloadError(f"{codec} payload: decodes to {bad} of {len(pts)} points with NaN/inf coordinates")
+    if len(pts):
+        _check_reach(pts, codec, max_range)
+        if bounds is not None:
+            _check_box(pts, codec, bounds)
     return pts
+
+
+def _check_reach(pts: np.ndarray, codec: str, max_range: float | None) -> None:
+    limit = coordinate_bound(max_range)
+    largest = np.abs(pts).max(axis=1)  # a norm is at most sqrt(3) times the largest coordinate
+    suspect = np.flatnonzero(largest > limit / np.sqrt(3.0))
+    if not len(suspect):
+        return
+    far = suspect[np.linalg.norm(pts[suspect].astype(np.float64), axis=1) > limit]
+    if len(far):
+        what = "no LiDAR return is that far" if max_range is None else f"its sensor sees to {max_range:g} m"
+        raise PayloadError(
+            f"{codec} payload: decodes to {len(far)} of {len(pts)} points farther than {limit:g} m from the sensor "
+            f"({what})"
+        )
+
+
+def _check_box(pts: np.ndarray, codec: str, bounds: tuple[object, object]) -> None:
+    low = np.broadcast_to(np.asarray(bounds[0], dtype=np.float64), (3,))
+    high = np.broadcast_to(np.asarray(bounds[1], dtype=np.float64), (3,))
+    slack = 1e-5 * np.maximum(np.abs(low), np.abs(high)) + 1e-6  # float32 rounding of the corners
+    outside = ((pts < low - slack) | (pts > high + slack)).any(axis=1)
+    if outside.any():
+        raise PayloadError(
+            f"{codec} payload: decodes to {int(outside.sum())} of {len(pts)} points outside the box its header "
+            f"states ({low.tolist()} to {high.tolist()})"
+        )

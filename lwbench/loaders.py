@@ -1,28 +1,28 @@
 """Built-in file loaders: KITTI odometry folders and folders (or single files) of scans.
 
 They are registered through the ``lwbench`` entry point ``files`` like any plugin. Each loader
-is one small class; what they share is how scans are picked from a folder and how the sensor
-model is chosen.
-
-Scans are taken from the layout, never from "every file that ends in .bin": KITTI's
-``velodyne/NNNNNN.bin``, or the files of a folder that share one naming scheme (``000012.bin``,
-``scan_0012.pcd``); other scan-like files (``times_000012.bin``, ``map.pcd``) are skipped with a
-:class:`~lwbench.derive.DataWarning` that names them (``lwbench inspect`` lists them too).
+is one small class; what they share is how scans are picked from a folder
+(:mod:`lwbench.scan_picking`) and how the sensor model is chosen.
 
 The ``sensor`` parameter:
 
 - ``auto`` (default): ``sensor.json`` beside the scans (written by lwbench), else an Ouster
   ``sensor_metadata.json``, else a model derived from the first scan
   (:func:`lwbench.derive.derive_sensor`: the ``ring`` field, else the point order, else -- with
-  a warning -- the elevation histogram). Every later scan is then checked to come from the same
-  sensor: a folder that mixes sensors fails on the first scan that does not match;
-- a preset name (``vlp16``, ``hdl64e``, ``os1-128``);
+  a warning, as a guess -- a preset's table that fits, the elevation histogram, a uniform grid).
+  Every later scan is then checked to come from the same sensor (a folder that mixes sensors
+  fails on the first scan that does not match) and to lie in the model's range window (a
+  warning names the returns outside it);
+- a preset name (``vlp16``, ``hdl64e``, ``os1-128``, ... :data:`lwbench.SENSOR_PRESETS`);
 - a path to an lwbench ``sensor.json`` or an Ouster ``sensor_metadata.json``.
+
+Whether the model was guessed is :attr:`SensorChoice.guessed` (and ``sensor_guessed`` on each
+dataset): exact for a ring field, a usable point order, a sensor file or a named preset; guessed
+otherwise. Results scored on a guessed model should carry that mark.
 """
 
 from __future__ import annotations
 
-import re
 import warnings
 from dataclasses import dataclass
 from functools import cached_property
@@ -33,10 +33,11 @@ import numpy as np
 
 from lwbench import Frame, Param
 from lwbench.dataset import Dataset
-from lwbench.derive import Derivation, derive_sensor, sensor_mismatch
+from lwbench.derive import Derivation, derive_sensor, outside_range_window, sensor_mismatch
 from lwbench.errors import DataWarning, ParameterError
 from lwbench.hookspecs import hookimpl
 from lwbench.io import (
+    BIN_LAYOUTS,
     NUSCENES_SUFFIX,
     SCAN_SUFFIXES,
     SENSOR_FILE,
@@ -51,6 +52,7 @@ from lwbench.io import (
     read_times,
     scan_suffix,
 )
+from lwbench.scan_picking import pick_scans, read_time_sidecar, rows_for, time_sidecars
 from lwbench.sensor import SENSOR_PRESETS, SensorModel, get_sensor
 
 __all__ = ["KittiDataset", "PointFileDataset", "SensorChoice", "pick_scans", "KITTI_LAYOUTS"]
@@ -59,6 +61,14 @@ _SENSOR_PARAM = Param(
     "sensor", "str", "auto", "sensor model: auto, a preset name, or a sensor.json / Ouster sensor_metadata.json path"
 )
 _RATE_PARAM = Param("rate_hz", "float", 10.0, "frame rate, when the data does not say", low=0.01)
+_FIELDS_PARAM = Param(
+    "fields", "str", "auto", "record layout of .bin scans (auto: the one plausible reading)",
+    choices=("auto", *BIN_LAYOUTS),
+)
+_MAX_RANGE_PARAM = Param(
+    "max_range", "float", None, "max range (m) of a derived sensor model (default: the first scan's farthest return)",
+    low=0.1,
+)
 POINT_SUFFIXES = SCAN_SUFFIXES
 KITTI_LAYOUTS = (
     "layouts that load: SEQ/velodyne/NNNNNN.bin (+ SEQ/poses.txt, calib.txt, times.txt); the official "
@@ -66,90 +76,17 @@ KITTI_LAYOUTS = (
     "path=ROOT with sequence=NN); a folder of .bin scans named one way (NNNNNN.bin)"
 )
 FILES_LAYOUTS = (
-    "layouts that load: one scan file (.pcd, .ply, .xyz, .bin, nuScenes .pcd.bin) or a folder of such "
+    "layouts that load: one scan file (.pcd, .ply, .xyz, .vtk, .bin, nuScenes .pcd.bin) or a folder of such "
     "scans named one way, with an optional pose file (*pose*.txt or poses_file=...)"
 )
+# What every loader of scans on disk declares beside its path.
+_SCAN_PARAMS = (_SENSOR_PARAM, _RATE_PARAM, _FIELDS_PARAM, _MAX_RANGE_PARAM)
 
 
-# ------------------------------------------------------------------------------ picking scans
-def _natural_key(path: Path) -> list[Any]:
-    """Sort ``scan_2`` before ``scan_10``: poses are matched to scans by order."""
-    return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", path.name.lower())]
-
-
-def _scheme(path: Path) -> str:
-    """A file's naming scheme: its name with every run of digits as ``#``."""
-    return re.sub(r"\d+", "#", path.name.lower())
-
-
-def pick_scans(candidates: list[Path], where: Path, loader: str) -> tuple[list[Path], list[Path]]:
-    """The scans among ``candidates`` (the files of one folder) and the scan-like files skipped.
-
-    One format (the most common one) and one naming scheme: names that are just a number
-    (``000012.bin``, KITTI's) win, else the scheme most files share. Names without digits
-    (``source.pcd``, ``target.pcd``) are all taken when no file is numbered. A tie is an error:
-    guessing which half of a folder is the data is how a per-point-times file became a scan.
-    """
-    candidates = [p for p in candidates if scan_suffix(p) is not None]
-    by_kind: dict[str, list[Path]] = {}
-    for p in candidates:
-        by_kind.setdefault(scan_suffix(p), []).append(p)
-    if not by_kind:
-        return [], []
-    ranked = sorted(by_kind.items(), key=lambda kv: -len(kv[1]))
-    if len(ranked) > 1 and len(ranked[0][1]) == len(ranked[1][1]):
-        counts = ", ".join(f"{len(v)} {k}" for k, v in ranked)
-        raise DataFormatError(f"{loader}: {where} mixes scan formats ({counts}); point at one file or split the folder")
-    kind, files = ranked[0]
-    schemes: dict[str, list[Path]] = {}
-    for p in files:
-        schemes.setdefault(_scheme(p), []).append(p)
-    numbered = {s: v for s, v in schemes.items() if "#" in s}
-    if numbered:
-        plain = f"#{kind}"
-        if plain in numbered:
-            chosen = numbered[plain]
-        else:
-            best = sorted(numbered.items(), key=lambda kv: -len(kv[1]))
-            if len(best) > 1 and len(best[0][1]) == len(best[1][1]):
-                names = ", ".join(s.replace("#", "N") for s, _ in best)
-                raise DataFormatError(
-                    f"{loader}: {where} holds scans named in several ways ({names}) and none is the most "
-                    "common; move the other files out or point at a folder with one kind"
-                )
-            chosen = best[0][1]
-    else:
-        chosen = files
-    taken = set(chosen)
-    skipped = sorted((p for p in candidates if p not in taken), key=_natural_key)
-    if skipped:
-        shown = ", ".join(p.name for p in skipped[:5]) + (f", ... ({len(skipped)} in all)" if len(skipped) > 5 else "")
-        warnings.warn(
-            f"{loader}: {len(skipped)} file(s) in {where} are not scans of this layout and were skipped: {shown}",
-            DataWarning,
-            stacklevel=3,
-        )
-    return sorted(chosen, key=_natural_key), skipped
-
-
-def _numbers(files: list[Path]) -> list[int] | None:
-    """Each scan's frame number when every name is one (KITTI: ``000012.bin`` is frame 12)."""
-    stems = [p.name.split(".")[0] for p in files]
-    return [int(s) for s in stems] if all(s.isdigit() for s in stems) else None
-
-
-def _rows_for(files: list[Path], n_rows: int, what: Path, loader: str) -> list[int]:
-    """Which row of a per-frame file (poses, times) belongs to each scan: the scan's frame
-    number when scans are numbered (a folder holding frames 100-199 uses rows 100-199), else
-    its position."""
-    numbers = _numbers(files)
-    rows = numbers if numbers is not None else list(range(len(files)))
-    if numbers is None and n_rows != len(files):
-        raise DataFormatError(f"{loader}: {n_rows} rows in {what} for {len(files)} scans")
-    if max(rows) >= n_rows:
-        raise DataFormatError(f"{loader}: {what} has {n_rows} rows, but scan {files[rows.index(max(rows))].name} "
-                              f"is frame {max(rows)}")
-    return rows
+def _required_path(loader: str, path: str | None) -> Path:
+    if not path:
+        raise DataFormatError(f"{loader}: the path parameter is required")
+    return Path(path)
 
 
 # ---------------------------------------------------------------------------- sensor choice
@@ -162,14 +99,21 @@ class SensorChoice:
     derivation: Derivation | None = None
     derived_from: Path | None = None
 
+    @property
+    def guessed(self) -> bool:
+        """Whether the model is a guess (derived without ring labels): results scored on it
+        should say so. A sensor file, a named preset, a ring field or a point order is exact."""
+        return self.derivation is not None and self.derivation.guessed
+
     def describe(self) -> dict[str, Any]:
-        info: dict[str, Any] = {"sensor source": self.source}
+        info: dict[str, Any] = {"sensor source": self.source, "sensor guessed": self.guessed}
         if self.derivation is not None:
             info["derived sensor"] = self.derivation.describe()
         return info
 
 
-def _choose_sensor(value: str, folder: Path, first: Path, read, rate_hz: float) -> SensorChoice:
+def _choose_sensor(value: str, folder: Path, first: Path, read, rate_hz: float,
+                   max_range: float | None = None) -> SensorChoice:
     if value == "auto":
         for name in (SENSOR_FILE, "sensor_metadata.json"):
             if (folder / name).is_file():
@@ -185,6 +129,8 @@ def _choose_sensor(value: str, folder: Path, first: Path, read, rate_hz: float) 
         except ValueError as exc:  # no plausible sensor fits the scan (lwbench.sensor's bounds)
             raise DataFormatError(f"{first}: no sensor model can be derived from this scan ({exc}); "
                                   "pass --dataset-param sensor=<preset or sensor.json path>") from None
+        if max_range is not None and max_range > d.sensor.min_range:
+            d = Derivation(d.sensor.with_max_range(max_range), d.method, d.stats, d.warnings, d.notes, d.rule)
         return SensorChoice(d.sensor, f"derived from {first.name} ({d.method})", d, first)
     if value.lower() in SENSOR_PRESETS:
         return SensorChoice(get_sensor(value), f"preset {value.lower()}")
@@ -228,11 +174,11 @@ class _ScanFiles(Dataset):
     def __init__(self, **params: Any) -> None:
         super().__init__(**params)
         self.skipped, self.pose_source = [], None
+        self.time_files: dict[Path, Path] = {}  # per-point time sidecars (times_NN.bin beside raw_NN.bin)
         self._checked: set[int] = set()
 
-    @staticmethod
-    def read(path: Path) -> ScanArrays:
-        return read_point_file(path)
+    def read(self, path: Path) -> ScanArrays:
+        return read_point_file(path, fields=self.config["fields"])
 
     def _named_sensor_now(self) -> None:
         """A sensor the user named (preset, file) is resolved at once, so a typo is one clear
@@ -249,24 +195,42 @@ class _ScanFiles(Dataset):
 
     @cached_property
     def sensor_choice(self) -> SensorChoice:
-        return _choose_sensor(self.config["sensor"], self.folder, self.files[0], self.read, self.config["rate_hz"])
+        return _choose_sensor(self.config["sensor"], self.folder, self.files[0], self.read, self.config["rate_hz"],
+                              self.config["max_range"])
 
     @property
     def sensor(self) -> SensorModel:
         return self.sensor_choice.sensor
+
+    @property
+    def sensor_guessed(self) -> bool:
+        """Whether the dataset's sensor model is a guess (:attr:`SensorChoice.guessed`)."""
+        return self.sensor_choice.guessed
 
     def _stamp(self, index: int) -> float:
         return index / self.sensor.rate_hz
 
     def _check_same_sensor(self, index: int, scan: ScanArrays) -> None:
         """A scan's own derived model against the one derived from the first scan: a folder of
-        two sensors must not silently share the first one's grid. Costs one derivation
-        (~40 ms on a 120k-point scan) per scan, once."""
+        two sensors must not silently share the first one's grid. Costs one derivation per scan,
+        once (~60 ms on a 120k-point scan; a guessed model is checked against the histogram's
+        quick guess, ~20 ms, not the full one's ~1 s)."""
         choice = self.sensor_choice
         if choice.derivation is None or index in self._checked or self.files[index] == choice.derived_from:
             return
+        outside = outside_range_window(scan.points, self.sensor)
+        if outside is not None:
+            warnings.warn(
+                f"{self.name}: {self.files[index].name}: {outside}, outside the range window of the model derived "
+                f"from {choice.derived_from.name} -- grid codecs (rangeimage, VSGP) drop them and the range metrics "
+                "leave out returns nearer than the min range; name the sensor (--dataset-param sensor=...), or for "
+                "far returns widen the window with --dataset-param max_range=M",
+                DataWarning,
+                stacklevel=3,
+            )
         if len(scan.points) >= 100:
-            mine = derive_sensor(scan.points, ring=scan.ring, rate_hz=self.sensor.rate_hz, warn=False)
+            mine = derive_sensor(scan.points, ring=scan.ring, rate_hz=self.sensor.rate_hz, warn=False,
+                                 quick=choice.guessed)
             why = sensor_mismatch(choice.derivation, mine)
             if why is not None:
                 first = choice.derivation
@@ -282,8 +246,15 @@ class _ScanFiles(Dataset):
                 )
         self._checked.add(index)
 
+    def _read_scan(self, path: Path) -> ScanArrays:
+        sidecar = self.time_files.get(path)
+        if sidecar is None:
+            return self.read(path)
+        scan = read_kitti_bin(path, self.config["fields"], drop_non_returns=False)
+        return ScanArrays(scan.points, scan.intensity, scan.ring, read_time_sidecar(sidecar, len(scan.points))).finite()
+
     def frame(self, index: int) -> Frame:
-        scan = self.read(self.files[index])
+        scan = self._read_scan(self.files[index])
         self._check_same_sensor(index, scan)
         pose = self.poses[index] if self.poses is not None else None
         return _frame(scan, self.sensor, index, self._stamp(index), pose)
@@ -297,6 +268,9 @@ class _ScanFiles(Dataset):
         info: dict[str, Any] = {"layout": self.layout, "poses from": self.pose_source or "none"}
         if self.skipped:
             info["skipped files"] = [p.name for p in self.skipped]
+        if self.time_files:
+            first = next(iter(self.time_files.values())).name
+            info["per-point times from"] = f"{len(self.time_files)} sidecar files ({first}, ...)"
         return {**info, **self.sensor_choice.describe()}
 
 
@@ -354,15 +328,12 @@ class KittiDataset(_ScanFiles):
     params = (
         Param("path", "str", None, "sequence folder (or the odometry root, with sequence)"),
         Param("sequence", "str", None, "with path = the odometry root: the sequence (00..21)"),
-        _SENSOR_PARAM,
-        _RATE_PARAM,
+        *_SCAN_PARAMS,
     )
 
     def __init__(self, **params: Any) -> None:
         super().__init__(**params)
-        if not self.config["path"]:
-            raise DataFormatError("kitti: the path parameter is required")
-        self.root = Path(self.config["path"])
+        self.root = _required_path(self.name, self.config["path"])
         if not self.root.is_dir():
             raise DataFormatError(f"kitti: {self.root} is not a folder; {KITTI_LAYOUTS}")
         layout = _kitti_layout(self.root, self.config["sequence"])
@@ -373,19 +344,20 @@ class KittiDataset(_ScanFiles):
         )
         if not self.files:
             raise DataFormatError(f"kitti: no .bin scans in {layout.scan_dir}; {KITTI_LAYOUTS}")
+        self.time_files = time_sidecars(self.files, self.skipped)
         self.poses = self._load_poses(layout.poses)
         self._named_sensor_now()
         times = self.folder / "times.txt"
         self.times = None
         if times.is_file():
             stamps = read_times(times)
-            self.times = stamps[_rows_for(self.files, len(stamps), times, "kitti")]
+            self.times = stamps[rows_for(self.files, len(stamps), times, "kitti")]
 
     def _load_poses(self, path: Path | None) -> np.ndarray | None:
         if path is None:
             return None
         poses = read_kitti_poses(path)
-        poses = poses[_rows_for(self.files, len(poses), path, "kitti")]
+        poses = poses[rows_for(self.files, len(poses), path, "kitti")]
         calib = self.folder / "calib.txt"
         tr = read_kitti_calib(calib) if calib.is_file() else None
         self.pose_source = f"{path}" + (" (camera frame; LiDAR pose via calib.txt Tr)" if tr is not None else "")
@@ -401,9 +373,8 @@ class KittiDataset(_ScanFiles):
             return True
         return any(scan_suffix(p) == ".bin" for p in path.iterdir())
 
-    @staticmethod
-    def read(path: Path) -> ScanArrays:
-        return read_kitti_bin(path)
+    def read(self, path: Path) -> ScanArrays:
+        return read_kitti_bin(path, self.config["fields"])
 
     def _stamp(self, index: int) -> float:
         return float(self.times[index]) if self.times is not None else super()._stamp(index)
@@ -416,25 +387,22 @@ def _stem(path: Path) -> str:
 
 
 class PointFileDataset(_ScanFiles):
-    """A folder of PCD/PLY/XYZ/BIN scans (one format and naming scheme, in natural order), or
+    """A folder of PCD/PLY/XYZ/VTK/BIN scans (one format and naming scheme, in natural order), or
     one scan file, with an optional pose file (``poses_file``; default: the one ``*pose*.txt`` in
     the folder, if exactly one). KITTI, TUM and stamped-KITTI pose files are recognised; keyed
     files are matched to scans by file stem (or by order when the keys are time stamps)."""
 
     name = "files"
-    description = "folder of PCD/PLY/XYZ/BIN scans or a single scan file, optional KITTI/TUM poses"
+    description = "folder of PCD/PLY/XYZ/VTK/BIN scans or a single scan file, optional KITTI/TUM poses"
     params = (
         Param("path", "str", None, "folder or file"),
         Param("poses_file", "str", None, "pose file (KITTI 3x4 rows or TUM)"),
-        _SENSOR_PARAM,
-        _RATE_PARAM,
+        *_SCAN_PARAMS,
     )
 
     def __init__(self, **params: Any) -> None:
         super().__init__(**params)
-        if not self.config["path"]:
-            raise DataFormatError("files: the path parameter is required")
-        self.root = Path(self.config["path"])
+        self.root = _required_path(self.name, self.config["path"])
         if self.root.is_file():
             if scan_suffix(self.root) is None:
                 raise DataFormatError(f"files: {self.root} is not a scan file; {FILES_LAYOUTS}")
@@ -442,6 +410,8 @@ class PointFileDataset(_ScanFiles):
         elif self.root.is_dir():
             self.folder, self.layout = self.root, "folder of scan files"
             self.files, self.skipped = pick_scans([p for p in self.root.iterdir() if p.is_file()], self.root, "files")
+            self.time_files = {s: t for s, t in time_sidecars(self.files, self.skipped).items()
+                               if scan_suffix(s) == ".bin"}
         else:
             raise DataFormatError(f"files: {self.root} does not exist")
         if not self.files:

@@ -1,8 +1,11 @@
 """The metric interfaces: frame metrics score one decoded scan, sequence metrics a whole run.
 
-Metric ids are a public contract (DESIGN.md): gates and scripts read them, so a metric may add
-ids but never rename one. A metric returns ``None`` for a value that is undefined on this input
-(e.g. Chamfer distance to an empty cloud) -- never NaN, which would poison every mean.
+Metric ids are a public contract (docs/design.md): gates and scripts read them, so a metric may
+add ids but never rename one. What an id *means* to the board is declared with it
+(:class:`MetricId`: unit, better direction, default column, headline, role, quality
+:class:`Guard`), so no part of lwbench knows a metric by name. A metric returns ``None`` for a
+value that is undefined on this input (e.g. Chamfer distance to an empty cloud) -- never NaN,
+which would poison every mean.
 
 How a row was scored is part of its identity: a metric declares a ``version`` (bump it whenever
 a change alters its values) and its user-settable ``params`` (``lwbench run --metric-param
@@ -25,36 +28,105 @@ from lwbench.dataset import Dataset
 from lwbench.frame import Frame
 from lwbench.params import Param, resolve_params
 
-__all__ = ["Evaluation", "FrameMetric", "MetricId", "SequenceEvaluation", "SequenceMetric", "LOWER", "HIGHER"]
+__all__ = [
+    "ALL_CURVES",
+    "Evaluation",
+    "FrameMetric",
+    "Guard",
+    "HIGHER",
+    "LOWER",
+    "METRIC_ROLES",
+    "MetricId",
+    "SequenceEvaluation",
+    "SequenceMetric",
+]
 
 MetricValues = dict[str, float | None]
 LOWER, HIGHER = "lower", "higher"
+#: What an id is to the report: a ``rate`` axis, a ``distortion`` plotted against the rate, a
+#: ``runtime`` bar; ``""`` for everything else.
+METRIC_ROLES = ("", "rate", "distortion", "runtime")
+#: ``Guard.off_curves`` value: a flagged configuration is left off every rate-distortion curve.
+ALL_CURVES = "*"
+
+
+@dataclass(frozen=True)
+class Guard:
+    """What one id's value says about a whole configuration on the board: the quality guard.
+
+    A configuration whose mean of the id is below ``below`` (or above ``above``) gets the flag
+    ``flag`` (shown as ``text``); flagged configurations rank after the others. Its figures of the
+    ids in ``voids`` then mean nothing (shown ``n/m``, never ranked); the rate-distortion curves of
+    the ids in ``off_curves`` (:data:`ALL_CURVES`: all) leave it out. ``setting`` names the board
+    setting that replaces the limit (``min_coverage``: ``lwbench leaderboard --min-coverage``)."""
+
+    flag: str
+    text: str
+    below: float | None = None
+    above: float | None = None
+    voids: tuple[str, ...] = ()
+    off_curves: tuple[str, ...] = ()
+    setting: str = ""
+
+    def __post_init__(self) -> None:
+        if (self.below is None) == (self.above is None):
+            raise ValueError(f"guard {self.flag}: give exactly one of below= and above=")
+        if not self.flag or not self.text:
+            raise ValueError("a guard needs a flag name and its text")
+
+    def raised(self, value: float | None, limit: float | None = None) -> bool:
+        """Whether a configuration with this mean is flagged (``limit``: the setting's value)."""
+        if value is None:
+            return False
+        if self.below is not None:
+            return value < (self.below if limit is None else limit)
+        return value > (self.above if limit is None else limit)
 
 
 class MetricId(str):
-    """A metric id that says what it is: its unit, which direction is better, and whether the
-    leaderboard shows it by default -- so a third-party metric sorts and prints correctly
-    without lwbench knowing its name. It *is* the id string (usable as a dict key, in JSON).
+    """A metric id that says what it is -- so a third-party metric sorts, prints, plots and guards
+    correctly without lwbench knowing its name. It *is* the id string (a dict key, in JSON).
 
-    ``better`` is ``"lower"``, ``"higher"`` or ``""`` (a count with no better direction).
+    - ``unit``; ``better``: ``"lower"``, ``"higher"`` or ``""`` (a count with no better direction);
+    - ``default``: a column of the default board; ``headline``: what a board is sorted by when
+      no ``--sort`` is given (one id: the compression ratio);
+    - ``role``: one of :data:`METRIC_ROLES` (what the HTML report draws it as);
+    - ``guard``: a :class:`Guard` -- what the id's value says about the whole configuration.
     """
 
     unit: str
     better: str
     default: bool
+    headline: bool
+    role: str
+    guard: Guard | None
 
-    def __new__(cls, name: str, unit: str = "", better: str = "", *, default: bool = False) -> MetricId:
+    def __new__(cls, name: str, unit: str = "", better: str = "", *, default: bool = False, headline: bool = False,
+                role: str = "", guard: Guard | None = None) -> MetricId:
         if better not in (LOWER, HIGHER, ""):
             raise ValueError(f"metric id {name}: better must be 'lower', 'higher' or '', got {better!r}")
+        if role not in METRIC_ROLES:
+            raise ValueError(f"metric id {name}: role must be one of {METRIC_ROLES}, got {role!r}")
+        if guard is not None and not isinstance(guard, Guard):
+            raise ValueError(f"metric id {name}: guard must be a lwbench.Guard")
         obj = super().__new__(cls, name)
         obj.unit, obj.better, obj.default = unit, better, default
+        obj.headline, obj.role, obj.guard = headline, role, guard
         return obj
 
     def __reduce__(self):  # pickles (worker processes) with its description
-        return (MetricId, (str(self), self.unit, self.better), {"default": self.default})
+        return (MetricId, (str(self), self.unit, self.better),
+                {"default": self.default, "headline": self.headline, "role": self.role, "guard": self.guard})
 
     def describe(self) -> dict:
-        return {"id": str(self), "unit": self.unit, "better": self.better, "default": self.default}
+        out = {"id": str(self), "unit": self.unit, "better": self.better, "default": self.default}
+        if self.headline:
+            out["headline"] = True
+        if self.role:
+            out["role"] = self.role
+        if self.guard is not None:
+            out["guard"] = {k: v for k, v in self.guard.__dict__.items() if v not in (None, (), "")}
+        return out
 
 
 def as_metric_id(i: str) -> MetricId:

@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from lwbench.errors import LwbenchError
-from lwbench.metric import HIGHER, LOWER, MetricId
+from lwbench.metric import ALL_CURVES, HIGHER, LOWER, MetricId
 
 __all__ = [
     "Curve",
@@ -121,11 +121,17 @@ def pareto_front(points: list[Point], better: str) -> list[Point]:
     return sorted(front, key=lambda p: (p.rate, p.distortion))
 
 
-def left_out_flags(distortion: str) -> set[str]:
-    """Flags that keep a configuration off the curves of ``distortion``: failed rows always; low
-    coverage for the range RMSD, which is measured over the paired returns only (a codec that
-    pairs 40 % of the scan has an RMSD over that 40 %)."""
-    return {"failed_rows", "localization_not_meaningful"} | ({"low_coverage"} if distortion == "range_rmsd" else set())
+def left_out_flags(distortion: str, info: Mapping[str, MetricId] | None = None) -> set[str]:
+    """Flags that keep a configuration off the curves of ``distortion``: failed rows always, and
+    every guard that declares it (``Guard.off_curves``: low coverage for the range RMSD, which is
+    measured over the paired returns only -- a codec that pairs 40 % of the scan has an RMSD over
+    that 40 % -- and originals that fail ICP for every curve)."""
+    out = {"failed_rows"}
+    for m in (info or {}).values():
+        guard = getattr(m, "guard", None)
+        if guard is not None and (ALL_CURVES in guard.off_curves or distortion in guard.off_curves):
+            out.add(guard.flag)
+    return out
 
 
 def curves_from_entries(
@@ -142,7 +148,7 @@ def curves_from_entries(
     better = getattr((info or {}).get(distortion), "better", "") or LOWER
     if better not in (LOWER, HIGHER):
         raise RDError(f"{distortion} has no better direction, so it is not a distortion")
-    skip = left_out_flags(distortion)
+    skip = left_out_flags(distortion, info)
     grouped: dict[tuple[str, str], list[Point]] = defaultdict(list)
     for e in entries:
         r, d = e.shown(rate), e.shown(distortion)

@@ -76,7 +76,7 @@ class Registry:
         try:
             module = importlib.import_module(module_name)
         except Exception as exc:  # noqa: BLE001 - the plugin's error, reported like an entry point's
-            self._fail(module_name, module_name, exc)
+            self.record_failure(module_name, module_name, exc)
             return False
         version = getattr(module, "__version__", "0")
         ok = self.register(module, module_name, provider=PLUGINS_ENV, target=module_name, version=str(version),
@@ -97,7 +97,7 @@ class Registry:
             try:
                 module = ep.load()
             except Exception as exc:  # noqa: BLE001 - any import error is the plugin's, not ours
-                self._fail(ep.name, ep.value, exc)
+                self.record_failure(ep.name, ep.value, exc)
                 continue
             self.register(module, ep.name, provider=dist, target=ep.value, version=version, _by_name=True)
 
@@ -114,13 +114,13 @@ class Registry:
         except Exception as exc:  # noqa: BLE001
             if self.pm.is_registered(plugin):
                 self.pm.unregister(plugin)
-            self._fail(name, target or repr(plugin), exc)
+            self.record_failure(name, target or repr(plugin), exc)
             return False
         try:
             self._collect(plugin, name, provider, version)
         except Exception as exc:  # noqa: BLE001
             self.pm.unregister(plugin)
-            self._fail(name, target or repr(plugin), exc)
+            self.record_failure(name, target or repr(plugin), exc)
             return False
         return True
 
@@ -157,7 +157,8 @@ class Registry:
             self.providers[(kind, key)] = f"{provider} ({name})"
             self.plugin_versions[(kind, key)] = f"{provider}=={version}"
 
-    def _fail(self, name: str, target: str, exc: BaseException) -> None:
+    def record_failure(self, name: str, target: str, exc: BaseException) -> None:
+        """Record that plugin ``name`` failed (``target``: what was being loaded); `lwbench list` shows it."""
         detail = "".join(traceback.format_exception(type(exc), exc, exc.__traceback__))
         self.failures.append(PluginFailure(name, target, f"{type(exc).__name__}: {exc}", detail))
 
@@ -203,12 +204,6 @@ class Registry:
     def metric_ids(self) -> list[str]:
         ids: list[str] = []
         for m in self.frame_metrics.values():
-            ids.extend(m.ids)
-        return ids
-
-    def sequence_metric_ids(self) -> list[str]:
-        ids: list[str] = []
-        for m in self.sequence_metrics.values():
             ids.extend(m.ids)
         return ids
 

@@ -1,9 +1,10 @@
 """``lwbench report``: one self-contained HTML page (no network needed) of what a store holds.
 
 - the leaderboard as a sortable table (click a header), with the quality flags;
-- rate-distortion curves, one plot per distortion (range RMSD, Chamfer, D1 PSNR, ATE, occupancy
-  IoU, whichever the store has), each codec's efficient points joined;
-- runtime bars (encode / decode / select, mean with the std over frames as error bars);
+- rate-distortion curves, one plot per id a metric declares a ``distortion`` (range RMSD,
+  Chamfer, D1 PSNR, ATE, occupancy IoU, whichever the store has) against the first ``rate`` id
+  (bytes), each codec's efficient points joined;
+- runtime bars (the ``runtime`` ids: encode / decode / select, mean with the std over frames);
 - a gallery: per codec, one decoded frame beside the original -- a top-down view and a range
   image, coloured by range -- so a person sees what a codec loses.
 
@@ -24,19 +25,21 @@ from pathlib import Path
 
 import numpy as np
 
-from lwbench.leaderboard import FLAG_TEXT, LeaderboardEntry, build_leaderboard, format_value, header_name
+from lwbench.leaderboard import LeaderboardEntry, build_leaderboard, format_value, header_name
 from lwbench.metric import MetricId
+from lwbench.plotting import pyplot, save_png_svg
 from lwbench.rd import curves_from_entries
 from lwbench.registry import Registry
 from lwbench.run.record import DECODED, ORIGINAL, original_key
 from lwbench.store import ResultStore
 
-__all__ = ["write_report", "DISTORTIONS"]
+__all__ = ["write_report", "ids_with_role"]
 
-DISTORTIONS = ("range_rmsd", "chamfer", "d1_psnr", "ate_rmse", "occ_iou")
-TABLE_COLUMNS = ("bytes", "ratio", "bits_per_point", "range_rmsd", "coverage", "false_returns", "chamfer",
-                 "d1_psnr", "encode_ms", "decode_ms", "select_ms", "ate_rmse", "occ_iou")
-_RUNTIME = ("encode_ms", "decode_ms", "select_ms")
+
+def ids_with_role(info: Mapping[str, MetricId], role: str) -> tuple[str, ...]:
+    """The ids whose metric declares them ``role`` (``rate``, ``distortion``, ``runtime``), in
+    board order: what the report draws, without knowing any metric by name."""
+    return tuple(i for i, m in info.items() if getattr(m, "role", "") == role)
 
 
 @dataclass
@@ -46,33 +49,14 @@ class Figure:
     svg: str  # inline markup
 
 
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    plt.rcParams.update({"svg.hashsalt": "lwbench", "figure.dpi": 100, "font.size": 9})
-    return plt
-
-
-def _save(fig, out: Path, name: str) -> str:
-    """Write ``name.png`` and ``name.svg``; return the SVG markup (deterministic ids)."""
-    fig.savefig(out / f"{name}.png", bbox_inches="tight", dpi=150)
-    buf = io.StringIO()
-    fig.savefig(buf, format="svg", bbox_inches="tight", metadata={"Date": None})
-    svg = buf.getvalue()
-    (out / f"{name}.svg").write_text(svg)
-    return svg[svg.index("<svg"):]
-
-
 def rd_figures(entries: list[LeaderboardEntry], info: Mapping[str, MetricId], out: Path) -> list[Figure]:
-    plt = _plt()
+    rates = ids_with_role(info, "rate")
+    if not rates:
+        return []
+    plt = pyplot()
     figures = []
-    for distortion in DISTORTIONS:
-        if distortion not in info:
-            continue
-        curves = curves_from_entries(entries, distortion, info=info)
+    for distortion in ids_with_role(info, "distortion"):
+        curves = curves_from_entries(entries, distortion, rate=rates[0], info=info)
         curves = {k: c for k, c in curves.items() if c.points}
         if not curves:
             continue
@@ -98,37 +82,38 @@ def rd_figures(entries: list[LeaderboardEntry], info: Mapping[str, MetricId], ou
                 if dropped:
                     ax.text(1.01, 0.0, f"exact (0), not drawn:\n{', '.join(dropped)}", transform=ax.transAxes,
                             fontsize=7, color="#555", va="bottom")
-            ax.set_xlabel("bytes per frame")
+            ax.set_xlabel(f"{header_name(rates[0], info)} per frame")
             ax.set_ylabel(header_name(distortion, info))
             ax.grid(True, which="both", alpha=0.3)
             ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
             ax.set_title(f"{distortion} on {ds}", fontsize=9)
             name = f"rd_{distortion}" + ("" if len(datasets) == 1 else f"_{datasets.index(ds)}")
-            figures.append(Figure(name, f"{distortion} against bytes ({ds})", _save(fig, out, name)))
+            figures.append(Figure(name, f"{distortion} against {rates[0]} ({ds})", save_png_svg(fig, out, name)))
             plt.close(fig)
     return figures
 
 
-def runtime_figure(entries: list[LeaderboardEntry], out: Path) -> Figure | None:
-    rows = [e for e in entries if any(e.value(k) is not None for k in _RUNTIME)]
+def runtime_figure(entries: list[LeaderboardEntry], out: Path, info: Mapping[str, MetricId]) -> Figure | None:
+    runtime = ids_with_role(info, "runtime")
+    rows = [e for e in entries if any(e.value(k) is not None for k in runtime)]
     if not rows:
         return None
-    plt = _plt()
+    plt = pyplot()
     labels = [e.label if len({x.dataset for x in rows}) == 1 else f"{e.label} · {e.dataset}" for e in rows]
     fig, ax = plt.subplots(figsize=(7.0, 0.28 * len(rows) + 1.2))
     y = np.arange(len(rows))
-    h = 0.27
-    for k, key in enumerate(_RUNTIME):
+    h = 0.8 / len(runtime)
+    for k, key in enumerate(runtime):
         means = [e.value(key) or 0.0 for e in rows]
         stds = [e.value(key, "std") or 0.0 for e in rows]
-        ax.barh(y + (k - 1) * h, means, h, xerr=stds, label=key.removesuffix("_ms"), capsize=2)
+        ax.barh(y + (k - (len(runtime) - 1) / 2) * h, means, h, xerr=stds, label=key.removesuffix("_ms"), capsize=2)
     ax.set_yticks(y, labels, fontsize=7)
     ax.invert_yaxis()
     ax.set_xscale("log")
     ax.set_xlabel("ms per frame (mean ± std over frames)")
     ax.grid(True, axis="x", which="both", alpha=0.3)
     ax.legend(fontsize=8)
-    svg = _save(fig, out, "runtime")
+    svg = save_png_svg(fig, out, "runtime")
     plt.close(fig)
     return Figure("runtime", "Runtime per frame", svg)
 
@@ -158,7 +143,7 @@ def _views(points: np.ndarray, half: float, el_span: tuple[float, float]) -> tup
 
 def gallery_image(original: np.ndarray, decoded: np.ndarray, title: str) -> str:
     """A PNG (base64) of the original and decoded cloud: top-down and range image, by range."""
-    plt = _plt()
+    plt = pyplot()
     r = np.linalg.norm(original, axis=1)
     half = float(np.percentile(np.abs(original[:, :2]), 98)) * 1.05 or 1.0
     from lwbench.geometry import spherical
@@ -205,7 +190,9 @@ def _gallery(store: ResultStore, entries: list[LeaderboardEntry]) -> list[tuple[
 
 
 def _table(entries: list[LeaderboardEntry], info: Mapping[str, MetricId]) -> str:
-    cols = [c for c in TABLE_COLUMNS if any(e.value(c) is not None for e in entries)]
+    # The board's default columns and every rate (bits per point beside the bytes).
+    wanted = [i for i, m in info.items() if m.default or getattr(m, "role", "") == "rate"]
+    cols = [c for c in wanted if any(e.value(c) is not None for e in entries)]
     many = len({e.dataset for e in entries}) > 1
     columns = [("dataset", "text", "")] if many else []
     columns += [("codec", "text", "configuration"), ("frames", "num", ""), ("fail", "num", "failed rows")]
@@ -226,7 +213,7 @@ def _table(entries: list[LeaderboardEntry], info: Mapping[str, MetricId]) -> str
                 std = e.value(c, "std")
                 tip = f' title="± {std:.4g}"' if std else ""
                 tds += f'<td data-v="{v!r}"{tip}>{format_value(v)}</td>'
-        flags = ", ".join(FLAG_TEXT.get(f, f) for f in e.flags)
+        flags = e.flags_text
         rows.append(f'<tr class="{"flagged" if e.flags else ""}">{tds}<td>{html.escape(flags)}</td></tr>')
     return f'<table id="board"><thead><tr>{head}</tr></thead><tbody>{"".join(rows)}</tbody></table>'
 
@@ -276,10 +263,10 @@ def write_report(store_path: Path, out: Path, registry: Registry, *, dataset: st
     out.mkdir(parents=True, exist_ok=True)
     info = registry.metric_info()
     with ResultStore(store_path, readonly=True) as store:
-        entries = build_leaderboard(store, dataset=dataset, info=info, sort="ratio")
+        entries = build_leaderboard(store, dataset=dataset, info=info)
         gallery = _gallery(store, entries)
     figures = rd_figures(entries, info, out)
-    runtime = runtime_figure(entries, out)
+    runtime = runtime_figure(entries, out, info)
     if runtime is not None:
         figures.append(runtime)
     parts = [

@@ -24,20 +24,20 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from lwbench.geometry import spherical, unit_directions
+from lwbench.sensor_specs import (
+    DERIVED_RANGE_NOISE_M,
+    MAX_BEAMS,
+    MAX_RANGE_M,
+    MAX_RATE_HZ,
+    MAX_RAYS,
+    MIN_AZIMUTH_STEP_DEG,
+    SENSOR_SPECS,
+)
 
 __all__ = [
     "SensorModel", "RangeImage", "SENSOR_PRESETS", "get_sensor", "register_sensor", "UnknownSensorError",
-    "MAX_BEAMS", "MIN_AZIMUTH_STEP_DEG", "MAX_RAYS", "MAX_RANGE_M",
+    "MAX_BEAMS", "MIN_AZIMUTH_STEP_DEG", "MAX_RAYS", "MAX_RANGE_M", "DERIVED_RANGE_NOISE_M",
 ]
-
-# What a real spinning LiDAR has, with room: 128 beams is the most sold today (OS1/OS2-128,
-# VLS-128, Pandar128); the finest azimuth step is ~0.1 deg (VLP-16 at 5 Hz) -- a tenth of it
-# is allowed; a grid of 4 Mi cells is 16x an OS1-128 at 2,048 columns.
-MAX_BEAMS = 256
-MIN_AZIMUTH_STEP_DEG = 0.01
-MAX_RAYS = 1 << 22
-MAX_RANGE_M = 10_000.0
-MAX_RATE_HZ = 1_000.0
 
 
 class UnknownSensorError(LookupError):
@@ -66,6 +66,9 @@ class SensorModel:
 
     ``elevations_deg`` is the beam table sorted ascending (row 0 = lowest beam). Non-uniform
     tables (HDL-64E, OS1) are supported: a point is assigned to the nearest beam.
+    ``range_noise_m`` is the 1-sigma range noise (metres): a preset's from its datasheet
+    (:mod:`lwbench.sensor_specs` says how each was read), else :data:`DERIVED_RANGE_NOISE_M`.
+    It is not geometry: :attr:`sensor_id` leaves it out, so ids of older models stay valid.
     """
 
     name: str
@@ -74,6 +77,7 @@ class SensorModel:
     min_range: float
     max_range: float
     rate_hz: float
+    range_noise_m: float = DERIVED_RANGE_NOISE_M
     _mid: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -99,6 +103,8 @@ class SensorModel:
             )
         if not (math.isfinite(self.rate_hz) and 0 < self.rate_hz <= MAX_RATE_HZ):
             raise ValueError(f"rate must be in (0, {MAX_RATE_HZ:g}] Hz, got {self.rate_hz}")
+        if not (math.isfinite(self.range_noise_m) and 0 <= self.range_noise_m <= self.max_range):
+            raise ValueError(f"range noise must be in [0, max_range] m, got {self.range_noise_m}")
         n_rays = len(elev) * int(round(360.0 / step))
         if n_rays > MAX_RAYS:
             raise ValueError(
@@ -193,6 +199,9 @@ class SensorModel:
         preset = SENSOR_PRESETS.get(self.name)
         if not full and preset is not None and preset == self:
             return {"preset": self.name}
+        return {**self._geometry(), "range_noise_m": self.range_noise_m}
+
+    def _geometry(self) -> dict:
         return {
             "name": self.name,
             "elevations_deg": list(self.elevations_deg),  # full precision: from_dict(to_dict(s)) == s
@@ -205,7 +214,8 @@ class SensorModel:
     @classmethod
     def from_dict(cls, d: dict) -> SensorModel:
         """Inverse of :meth:`to_dict`; ``ValueError`` / ``KeyError`` / ``TypeError`` for anything
-        that is not a plausible sensor (see the bounds checked on construction)."""
+        that is not a plausible sensor (see the bounds checked on construction). A dict without
+        ``range_noise_m`` (written before it existed) gets :data:`DERIVED_RANGE_NOISE_M`."""
         if not isinstance(d, dict):
             raise TypeError(f"a sensor description is an object, got {type(d).__name__}")
         if "preset" in d:
@@ -215,8 +225,10 @@ class SensorModel:
             raise ValueError(f"a sensor has 1 to {MAX_BEAMS} beams: elevations_deg lists their angles")
         if not all(isinstance(e, (int, float)) and not isinstance(e, bool) for e in table):
             raise TypeError("elevations_deg must hold numbers")
-        for key in ("azimuth_step_deg", "min_range", "max_range", "rate_hz"):
-            if isinstance(d[key], bool) or not isinstance(d[key], (int, float)):
+        noise = d.get("range_noise_m", DERIVED_RANGE_NOISE_M)
+        for key, value in (*((k, d[k]) for k in ("azimuth_step_deg", "min_range", "max_range", "rate_hz")),
+                           ("range_noise_m", noise)):
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
                 raise TypeError(f"{key} must be a number")
         return cls(
             name=str(d["name"]),
@@ -225,6 +237,7 @@ class SensorModel:
             min_range=float(d["min_range"]),
             max_range=float(d["max_range"]),
             rate_hz=float(d["rate_hz"]),
+            range_noise_m=float(noise),
         )
 
     def to_json(self) -> str:
@@ -233,38 +246,48 @@ class SensorModel:
     # -- on the wire: a reference, not the table ----------------------------------------------
     @functools.cached_property
     def sensor_id(self) -> str:
-        """A short, stable name for this exact model: 16 hex digits of the SHA-256 of its full
-        table. Two models with the same id are equal (the table is the identity)."""
-        blob = json.dumps(self.to_dict(full=True), sort_keys=True, separators=(",", ":"))
+        """A short, stable name for this exact geometry: 16 hex digits of the SHA-256 of its full
+        table. Two models with the same id have the same geometry (the table is the identity;
+        ``range_noise_m`` is not part of it, so ids written before it existed stay valid)."""
+        blob = json.dumps(self._geometry(), sort_keys=True, separators=(",", ":"))
         return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
     def to_wire(self) -> dict:
         """What a payload carries to name its sensor: ``{"preset": name}`` for a preset, else
         ``{"id": sensor_id}`` (~25 bytes). A receiver needs a sensor's table once, not in every
         frame -- a derived 64-beam table is ~1.5 kB of JSON, which per frame would be a fifth of
-        a VSGP payload -- so the table travels once per stream (:func:`register_sensor` on the
-        receiving side; the runner does it for each frame's sensor before decoding)."""
+        a VSGP payload -- so the table travels once per stream and the receiver hands its decoder
+        the tables it was told (:class:`lwbench.catalog.SensorCatalog`)."""
         preset = SENSOR_PRESETS.get(self.name)
         if preset is not None and preset == self:
             return {"preset": self.name}
         return {"id": self.sensor_id}
 
     @classmethod
-    def from_wire(cls, d: dict) -> SensorModel:
-        """Inverse of :meth:`to_wire` (a full table, as older payloads carried, also reads).
+    def from_wire(cls, d: dict, catalog=None, *, legacy: bool = False) -> SensorModel:
+        """Inverse of :meth:`to_wire` (a full table, as older payloads carried, also reads); an
+        id is looked up in ``catalog`` (a :class:`lwbench.catalog.SensorCatalog`: the tables the
+        receiver was told) -- and, with ``legacy`` (a decoder never handed its sensors), among
+        what this process encoded or registered with the deprecated :func:`register_sensor`.
 
-        Raises :class:`UnknownSensorError` for an id this process was not told about and
+        Raises :class:`UnknownSensorError` for an id the receiver was not told about and
         ``ValueError`` / ``KeyError`` / ``TypeError`` for a malformed description."""
         if not isinstance(d, dict):
             raise TypeError(f"a sensor description is an object, got {type(d).__name__}")
         if "id" in d and len(d) == 1:
             key = d["id"]
-            if not isinstance(key, str) or key not in _CATALOG:
+            found = None
+            if isinstance(key, str):
+                found = catalog.get(key) if catalog is not None else None
+                if found is None and (legacy or catalog is None):
+                    found = _legacy_lookup(key)
+            if found is None:
                 raise UnknownSensorError(
                     f"sensor {key!r} is not known to this receiver: its table travels once per stream "
-                    "(register it with lwbench.register_sensor, or decode with the stream's sensor.json)"
+                    "(hand the decoder the stream's sensors: codec.use_sensors(...), or decode with the "
+                    "stream's sensor.json)"
                 )
-            return _CATALOG[key]
+            return found
         if "preset" in d and not isinstance(d["preset"], str):
             raise TypeError("sensor preset must be a name")
         return cls.from_dict(d)
@@ -277,6 +300,7 @@ class SensorModel:
             self.min_range,
             max_range,
             self.rate_hz,
+            min(self.range_noise_m, max_range),
         )
 
     # -- derivation from data ---------------------------------------------------------------
@@ -290,45 +314,70 @@ class SensorModel:
         name: str = "derived",
         bin_deg: float = 0.02,
     ) -> SensorModel:
-        """Estimate a sensor model from one real scan (see :mod:`lwbench.derive`, which also
-        says *how* it was derived: :func:`lwbench.derive.derive_sensor`).
+        """Estimate a sensor model from one real scan (:func:`lwbench.beam_table.estimate_sensor`;
+        :func:`lwbench.derive.derive_sensor` gives the same model and says *how* it was derived).
 
         The beam table comes from the ``ring`` field when given, else from the point order
-        (ring-major or firing-major), else -- with a warning, as a guess -- from the peaks of the
-        elevation histogram. The azimuth step follows from the steps between neighbouring returns.
+        (ring-major or firing-major), else -- with a :class:`~lwbench.DataWarning`, as a guess --
+        from a preset's table that fits the elevations, or the elevation histogram. The azimuth
+        step follows from the steps between neighbouring returns (or the points per ring).
         """
-        from lwbench.derive import derive_sensor
+        import warnings
 
-        return derive_sensor(points, ring=ring, rate_hz=rate_hz, name=name, bin_deg=bin_deg).sensor
+        from lwbench.beam_table import estimate_sensor
+        from lwbench.errors import DataWarning
 
-
-def _hdl64e_table() -> tuple[float, ...]:
-    # HDL-64E S2 (KITTI): upper block of 32 lasers from +2.0 to -8.33 deg (1/3 deg apart),
-    # lower block of 32 from -8.83 to -24.33 deg (1/2 deg apart), per the Velodyne manual.
-    upper = np.linspace(2.0, -8.33, 32)
-    lower = np.linspace(-8.83, -24.33, 32)
-    return tuple(float(e) for e in np.concatenate([upper, lower]))
+        estimate = estimate_sensor(points, ring=ring, rate_hz=rate_hz, name=name, bin_deg=bin_deg)
+        for message in estimate.warnings:
+            warnings.warn(message, DataWarning, stacklevel=2)
+        return cls(**estimate.fields)
 
 
-SENSOR_PRESETS: dict[str, SensorModel] = {
-    # The VSGP paper's setting: VLP-16, +-15 deg in 2 deg steps, 0.1 deg azimuth (3600 columns),
-    # 10 m max range, 4 Hz -> 16 x 3600 = 57,600 rays.
-    "vlp16": SensorModel("vlp16", tuple(np.linspace(-15, 15, 16)), 0.1, 0.1, 10.0, 4.0),
-    # KITTI's HDL-64E at 10 Hz: ~2,083 firings per turn; 2,048 columns (0.176 deg) keeps the
-    # cell count near the scan's point count (~120k).
-    "hdl64e": SensorModel("hdl64e", _hdl64e_table(), 360.0 / 2048, 0.9, 120.0, 10.0),
-    # Ouster OS1-128 in 1024x10 mode, 45 deg vertical field of view.
-    "os1-128": SensorModel("os1-128", tuple(np.linspace(-22.5, 22.5, 128)), 360.0 / 1024, 0.3, 120.0, 10.0),
-}
+def _preset(name: str) -> SensorModel:
+    spec = SENSOR_SPECS[name]
+    return SensorModel(spec.name, spec.elevations_deg, spec.azimuth_step_deg, spec.min_range, spec.max_range,
+                       spec.rate_hz, spec.range_noise_m)
 
 
-# Sensors this process has been told about, by id (the receiving side of "the table travels once
-# per stream"). Presets need no registration.
+#: The sensors lwbench knows by name, built from their datasheets (:data:`SENSOR_SPECS`).
+SENSOR_PRESETS: dict[str, SensorModel] = {name: _preset(name) for name in SENSOR_SPECS}
+
+
+# Deprecated memory of sensors: those this process's encoders wrote and those given to the
+# deprecated register_sensor. Only a decoder that was never handed its sensors reads it -- old
+# plugin tests' ``MyCodec().decode(MyCodec().encode(frame))`` -- with a DeprecationWarning. No
+# lwbench receiver does (each hands its decoder the stream's sensors: lwbench.catalog), so no
+# decode of lwbench depends on what else the process did; it goes once plugins' tests hand theirs.
 _CATALOG: dict[str, SensorModel] = {}
 
 
+def remember_encoded(sensor: SensorModel) -> None:
+    """Note that an encoder of this process wrote a payload naming ``sensor`` (see ``_CATALOG``)."""
+    _CATALOG.setdefault(sensor.sensor_id, sensor)
+
+
+def _legacy_lookup(sensor_id: str) -> SensorModel | None:
+    found = _CATALOG.get(sensor_id)
+    if found is not None:
+        import warnings
+
+        warnings.warn(
+            f"sensor {sensor_id} was resolved from what this process encoded before: hand the decoder its "
+            "sensors (codec.use_sensors([frame.sensor])); a bare decoder will not find them in a later lwbench",
+            DeprecationWarning, stacklevel=4,
+        )
+    return found
+
+
 def register_sensor(sensor: SensorModel) -> str:
-    """Tell this process (a decoder) about a sensor, so payloads naming it by id decode."""
+    """Deprecated: hand the decoder its sensors instead (``codec.use_sensors([sensor])``).
+
+    Still makes payloads naming ``sensor`` by id decode in this process, for scripts written
+    before decoders were told their sensors."""
+    import warnings
+
+    warnings.warn("lwbench.register_sensor is deprecated: hand the decoder its sensors with "
+                  "codec.use_sensors([sensor])", DeprecationWarning, stacklevel=2)
     _CATALOG.setdefault(sensor.sensor_id, sensor)
     return sensor.sensor_id
 

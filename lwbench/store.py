@@ -3,7 +3,9 @@
 SQLite in WAL mode with one transaction per row, so a killed run loses at most the row being
 computed, readers (``lwbench leaderboard``) never block the writer, and a re-run skips every
 key already stored. Each row carries its provenance -- lwbench, plugin and library versions,
-machine, seed -- because a number nobody can reproduce is worth little.
+machine, seed -- because a number nobody can reproduce is worth little. The arrays a row keeps
+(decoded clouds, the originals a report shows) are files beside the store, content-addressed
+and compressed (:mod:`lwbench.artifacts`); the store holds their names.
 """
 
 from __future__ import annotations
@@ -22,13 +24,16 @@ from typing import Any
 
 import numpy as np
 
+from lwbench.artifacts import CloudFiles, pack_array, unpack_array
 from lwbench.errors import StoreError
 
 __all__ = ["ResultStore", "ResultRow", "evaluation_key", "result_key", "environment_versions", "is_results_store"]
 
 # 2: rows carry the codec plugin's package version and the scoring signature (metric names,
 #    versions, parameters and settings), both part of the key.
-SCHEMA_VERSION = 2
+# 3: arrays are files beside the store (table artifact_files: their names); older stores' arrays
+#    stay readable in the artifacts table.
+SCHEMA_VERSION = 3
 _COLUMNS = (
     "key", "kind", "dataset", "dataset_id", "frame", "codec", "codec_version", "params", "status", "error",
     "metrics", "extra", "seed", "lwbench_version", "versions", "machine", "created", "plugin_version", "scoring",
@@ -61,6 +66,12 @@ CREATE TABLE IF NOT EXISTS artifacts (
     evaluation      TEXT NOT NULL,
     name            TEXT NOT NULL,
     data            BLOB NOT NULL,
+    PRIMARY KEY (evaluation, name)
+);
+CREATE TABLE IF NOT EXISTS artifact_files (
+    evaluation      TEXT NOT NULL,
+    name            TEXT NOT NULL,
+    digest          TEXT NOT NULL,
     PRIMARY KEY (evaluation, name)
 );
 """
@@ -282,6 +293,9 @@ class ResultStore:
                 raise StoreError(f"cannot write results store {self.path}: {exc}") from None
         self._present = _columns(self.conn, "results")
         self._has_artifacts = bool(_columns(self.conn, "artifacts"))
+        self._has_files = bool(_columns(self.conn, "artifact_files"))
+        # An in-memory store (a gate without a store) keeps its arrays in memory too.
+        self.files = None if str(path) == ":memory:" else CloudFiles.beside(self.path)
 
     def close(self) -> None:
         self.conn.close()
@@ -301,8 +315,9 @@ class ResultStore:
 
     def put(self, row: ResultRow, artifacts: dict[str, np.ndarray] | None = None) -> None:
         """Insert or replace one row -- and the arrays it produced (``artifacts``, e.g. the
-        decoded cloud, stored under the row's *evaluation* key) -- in one transaction."""
-        from lwbench import __version__
+        decoded cloud, kept under the row's *evaluation* key) -- in one transaction (the arrays'
+        files are written first, so a row never names a file that is not there)."""
+        from lwbench.version import __version__
 
         if self.readonly:
             raise StoreError(f"{self.path} was opened read-only")
@@ -329,35 +344,46 @@ class ResultStore:
             "plugin_version": row.plugin_version,
             "scoring": canonical_json(row.scoring),
         }
-        blobs = [(row.evaluation, name, _pack_array(a)) for name, a in (artifacts or {}).items()]
+        kept = self._keep(row.evaluation, artifacts or {})
         with self.conn:
             self.conn.execute(
                 f"INSERT OR REPLACE INTO results ({', '.join(_COLUMNS)}) VALUES ({', '.join('?' * len(_COLUMNS))})",
                 [values[c] for c in _COLUMNS],
             )
-            self.conn.executemany("INSERT OR REPLACE INTO artifacts VALUES (?, ?, ?)", blobs)
+            kept(self.conn)
 
     def put_artifact(self, key: str, name: str, array: np.ndarray) -> None:
         """Store an array that belongs to no single row (e.g. an original scan a report shows)."""
         if self.readonly:
             raise StoreError(f"{self.path} was opened read-only")
+        kept = self._keep(key, {name: array})
         with self.conn:
-            self.conn.execute("INSERT OR REPLACE INTO artifacts VALUES (?, ?, ?)", (key, name, _pack_array(array)))
+            kept(self.conn)
+
+    def _keep(self, key: str, arrays: dict[str, np.ndarray]) -> Callable[[sqlite3.Connection], None]:
+        """Write the arrays' files now; return what records their names (inside the row's
+        transaction). An in-memory store keeps the arrays themselves."""
+        if self.files is None:
+            blobs = [(key, name, pack_array(a)) for name, a in arrays.items()]
+            return lambda conn: conn.executemany("INSERT OR REPLACE INTO artifacts VALUES (?, ?, ?)", blobs)
+        names = [(key, name, self.files.put(a)) for name, a in arrays.items()]
+        return lambda conn: conn.executemany("INSERT OR REPLACE INTO artifact_files VALUES (?, ?, ?)", names)
 
     def artifact(self, evaluation: str, name: str) -> np.ndarray | None:
-        """An array stored with an evaluation (``None`` if it was not kept)."""
+        """An array kept with an evaluation (``None`` if it was not kept, or its file is gone):
+        a file beside the store, or -- rows of older lwbench releases -- a blob in the store."""
+        if self._has_files and self.files is not None:
+            row = self.conn.execute(
+                "SELECT digest FROM artifact_files WHERE evaluation = ? AND name = ?", (evaluation, name)
+            ).fetchone()
+            if row is not None:
+                return self.files.get(row[0])
         if not self._has_artifacts:
             return None
         row = self.conn.execute(
             "SELECT data FROM artifacts WHERE evaluation = ? AND name = ?", (evaluation, name)
         ).fetchone()
         return None if row is None else _unpack_array(row[0])
-
-    def artifact_names(self, evaluation: str) -> list[str]:
-        if not self._has_artifacts:
-            return []
-        rows = self.conn.execute("SELECT name FROM artifacts WHERE evaluation = ? ORDER BY name", (evaluation,))
-        return [r[0] for r in rows]
 
     def rows(self, *, dataset: str | None = None, kind: str | None = None) -> Iterator[ResultRow]:
         cols = [c if c in self._present else f"{_DEFAULTS[c]} AS {c}" for c in _COLUMNS]
@@ -404,17 +430,11 @@ class ResultStore:
 _DEFAULTS = {"plugin_version": "''", "scoring": "'[]'"}
 
 
-def _pack_array(array: np.ndarray) -> bytes:
-    """``.npy`` bytes (no pickle) compressed with zstd level 1: ~10 % smaller decoded clouds at
-    a few ms each; a store is read back with ``allow_pickle=False``."""
-    import zstandard
-
-    buf = io.BytesIO()
-    np.save(buf, np.ascontiguousarray(array), allow_pickle=False)
-    return zstandard.ZstdCompressor(level=1).compress(buf.getvalue())
-
-
 def _unpack_array(blob: bytes) -> np.ndarray:
+    """A blob in the store: :func:`lwbench.artifacts.pack_array` bytes (in-memory stores), or
+    zstd-compressed ``.npy`` (stores of schema 2 and before), read without pickle."""
+    if blob[:4] == b"LWBC":
+        return unpack_array(blob, "an array in the store")
     import zstandard
 
     raw = zstandard.ZstdDecompressor().decompress(blob)

@@ -34,7 +34,7 @@ from pathlib import Path
 from typing import Any, BinaryIO
 
 from lwbench.errors import DataFormatError
-from lwbench.sensor import SensorModel, register_sensor
+from lwbench.sensor import SensorModel
 
 __all__ = [
     "FrameEntry",
@@ -103,12 +103,6 @@ class StreamHeader:
             out.append(sensor)
         return out
 
-    def register_sensors(self, where: str) -> list[SensorModel]:
-        """Tell this process the stream's sensors, so payloads naming them by id decode."""
-        models = self.sensor_models(where)
-        for s in models:
-            register_sensor(s)
-        return models
 
 
 @dataclass
@@ -274,15 +268,14 @@ class PayloadSource:
         for i, e in enumerate(self.entries):
             yield e, self.read(i)
 
-    def register_sensors(self) -> list[SensorModel]:
-        """Make every sensor this source's payloads may name known to this process."""
-        models = self.header.register_sensors(str(self.path)) if self.header is not None else []
+    def sensors(self) -> list[SensorModel]:
+        """Every sensor this source's payloads may name (the stream header's tables and a
+        ``sensor.json`` beside the payloads): what a decoder of them is handed."""
+        models = self.header.sensor_models(str(self.path)) if self.header is not None else []
         if self.sensor_file is not None:
             from lwbench.io import read_sensor_file
 
-            sensor = read_sensor_file(self.sensor_file)
-            register_sensor(sensor)
-            models.append(sensor)
+            models.append(read_sensor_file(self.sensor_file))
         return models
 
 

@@ -26,7 +26,7 @@ from lwbench.io import SENSOR_FILE
 from lwbench.params import resolve_params
 from lwbench.payload import Payload
 from lwbench.registry import Registry
-from lwbench.run.evaluate import checked_cloud
+from lwbench.run.evaluate import decoded_cloud
 from lwbench.run.plan import CodecConfig, expand_codec_configs
 from lwbench.streamfile import (
     STREAM_SUFFIX,
@@ -162,13 +162,13 @@ def decoded_frames(
     registry: Registry, source: PayloadSource, overrides: Sequence[str] = ()
 ) -> tuple[str, list[DecodedFrame]]:
     """Decode every payload of ``source`` with a fresh codec built from its stream header."""
-    source.register_sensors()
+    sensors = source.sensors()
     cls, params = _decoder(registry, source, overrides)
     out = []
     for entry, data in source:
         try:
             payload = Payload.from_bytes(data)
-            points = checked_cloud(cls.name, cls(**params).decode(data))
+            points = decoded_cloud(cls.name, cls(**params).use_sensors(sensors).decode(data))
         except LwbenchError as exc:
             raise type(exc)(f"{source.path}: frame {entry.name}: {exc}") from None
         out.append(DecodedFrame(entry, points, payload.pose, len(data)))
@@ -191,7 +191,7 @@ def decode_payloads(
     if fmt == "bag" and out.exists():
         raise DataFormatError(f"{out} exists: a bag is written to a new folder (rosbag2 layout)")
     codec, frames = decoded_frames(registry, source, overrides)
-    sensors = source.register_sensors()
+    sensors = source.sensors()
     summary = DecodeSummary(out, codec, len(frames), sum(len(f.points) for f in frames))
     if fmt == "bag":
         from lwbench.bags import BagCloud, write_bag

@@ -100,9 +100,9 @@ def _colours(errors: np.ndarray, vmax: float) -> np.ndarray:
 def render_png(pair: ViewPair, path: str | Path, max_error: float | None = None) -> Path:
     """Two top-down panels (original, decoded: stacked for a long scene, side by side otherwise),
     coloured by error on one scale, with a colour bar."""
-    from lwbench.report import _plt
+    from lwbench.plotting import pyplot
 
-    plt = _plt()
+    plt = pyplot()
     e_orig, e_dec = pair.errors()
     vmax = pair.scale(max_error)
     pts = pair.original if len(pair.original) else pair.decoded

@@ -1,7 +1,7 @@
 """lwbench's shared metrics, registered through the ``core_metrics`` entry point.
 
-One module per family; every codec is scored by the same code. Definitions: DESIGN.md and
-``docs/metrics.md``.
+One module per family; every codec is scored by the same code. Definitions: docs/design.md and
+docs/metrics.md.
 """
 
 from __future__ import annotations

@@ -40,9 +40,9 @@ class GeometryMetric(FrameMetric):
     name = "geometry"
     order = 30
     ids = (
-        MetricId("chamfer", "m", LOWER, default=True),
+        MetricId("chamfer", "m", LOWER, default=True, role="distortion"),
         MetricId("hausdorff", "m", LOWER),
-        MetricId("d1_psnr", "dB", HIGHER, default=True),
+        MetricId("d1_psnr", "dB", HIGHER, default=True, role="distortion"),
         MetricId("d2_psnr", "dB", HIGHER),
     )
     description = "Chamfer and Hausdorff distances (m); D1/D2 PSNR (dB) as MPEG pc_error, peak = max range"

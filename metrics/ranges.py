@@ -17,9 +17,15 @@ So the pairing is done on the returns' directions, relative to each other:
   a window one cell in size centred on ``p`` itself);
 - returns are paired **one-to-one, nearest first** (by 3-D distance among the candidates);
 - ``range_rmsd`` = RMSD of ``|p| - |q|`` over the pairs; ``coverage`` = share of original
-  returns with a partner (bit-identical duplicates in the scan count as one return);
-  ``false_returns`` = share of decoded returns that are no original return's partner and have
-  no original return within the tolerance.
+  returns with a partner; ``false_returns`` = share of decoded returns that are no original
+  return's partner and have no original return within the tolerance.
+
+Both clouds are read the same way first: bit-identical duplicates count as one return (nuScenes
+writes them, Draco merges them, a selection codec may return a point twice -- a duplicate copy
+must not pair with another original's window), and points nearer than the sensor's minimum
+range are not returns (the placeholders drivers write for rays without a return). A return
+more than :data:`_BEAM_MARGIN` beam spacings outside the beam table has no window: only a
+bit-identical copy of it is its partner.
 
 Why one-to-one and nearest first, rather than "each original with its nearest decoded return
 in direction": real scans hold several returns within one window (at short range each laser's
@@ -42,7 +48,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from lwbench import HIGHER, LOWER, Evaluation, FrameMetric, MetricId, Param, SensorModel, thread_budget
+from lwbench import HIGHER, LOWER, Evaluation, FrameMetric, Guard, MetricId, Param, SensorModel, thread_budget
 from lwbench.geometry import spherical
 
 if TYPE_CHECKING:
@@ -52,7 +58,7 @@ __all__ = ["RangeMetric", "direction_coordinates", "match_returns"]
 
 # Room on either side of the beam table in the (non-periodic) elevation axis; the k-d tree's
 # periodic topology needs a box, and returns this far outside the field of view are unpaired
-# whatever the tolerance.
+# whatever the tolerance (their coordinates are NaN: they never reach the tree).
 _BEAM_MARGIN = 16.0
 
 
@@ -65,7 +71,9 @@ def distinct_rows(points: np.ndarray) -> np.ndarray:
 
 def direction_coordinates(points: np.ndarray, sensor: SensorModel) -> tuple[np.ndarray, np.ndarray]:
     """``(N, 2)`` coordinates (azimuth in steps in ``[0, n_azimuth)``, elevation as a beam index
-    shifted into the tree's box) and the ranges; zero-range points get NaN coordinates."""
+    shifted into the tree's box) and the ranges. Points that are no return -- nearer than the
+    sensor's minimum range (zero range included) -- and returns more than ``_BEAM_MARGIN`` beam
+    spacings outside the table get NaN coordinates: they pair with nothing."""
     r, az, el = spherical(points)
     col = np.mod((az + math.pi) / sensor.azimuth_step_rad, sensor.n_azimuth)
     col = np.where(col >= sensor.n_azimuth, 0.0, col)  # mod can round up to the period itself
@@ -79,9 +87,10 @@ def direction_coordinates(points: np.ndarray, sensor: SensorModel) -> tuple[np.n
         lo_gap, hi_gap = beams[1] - beams[0], beams[-1] - beams[-2]
         row = np.where(el < beams[0], (el - beams[0]) / lo_gap, row)
         row = np.where(el > beams[-1], len(beams) - 1 + (el - beams[-1]) / hi_gap, row)
-    row = np.clip(row + _BEAM_MARGIN, 0.0, _box_rows(sensor) - 1e-9)
+    row = row + _BEAM_MARGIN
     coords = np.stack([col, row], axis=1)
-    coords[r <= 0] = np.nan
+    outside = (row < 0.0) | (row > _box_rows(sensor) - 1e-9)
+    coords[(r <= 0) | (r < sensor.min_range) | outside] = np.nan
     return coords, r
 
 
@@ -108,6 +117,12 @@ def _tree(coords: np.ndarray, sensor: SensorModel) -> cKDTree:
 # draws piled on one spot) from making the candidate set quadratic.
 MAX_CANDIDATES = 8
 _MAX_ROUNDS = 32
+
+
+def _returns(points: np.ndarray, sensor: SensorModel) -> np.ndarray:
+    """Indices of the points that are returns: not nearer than the sensor's minimum range."""
+    r = np.linalg.norm(np.asarray(points, dtype=np.float64), axis=1)
+    return np.flatnonzero((r > 0) & (r >= sensor.min_range))
 
 
 def _exact_pairs(p: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -200,6 +215,12 @@ def match_returns(
     near_p = np.zeros(len(q_coords), dtype=bool)
     p_idx = np.flatnonzero(np.isfinite(p_coords[:, 0]))
     q_idx = np.flatnonzero(np.isfinite(q_coords[:, 0]))
+    # A bit-identical copy is its return's partner wherever it lies, also outside the table's
+    # margin (which has no window): a kept return is never unpaired.
+    p_ret = _returns(p_points, sensor)
+    q_ret = _returns(q_points, sensor)
+    pa, qb = _exact_pairs(np.asarray(p_points)[p_ret], np.asarray(q_points)[q_ret])
+    partner[p_ret[pa]] = q_ret[qb]
     if not len(p_idx) or not len(q_idx):
         return partner, near_p
     bound = float(np.nextafter(tolerance, np.inf))
@@ -207,10 +228,10 @@ def match_returns(
         p_tree = _tree(p_coords[p_idx], sensor)
     dist, _ = p_tree.query(q_coords[q_idx], k=1, p=np.inf, distance_upper_bound=bound, workers=thread_budget())
     near_p[q_idx] = np.isfinite(dist)
-    pa, qb = _exact_pairs(np.asarray(p_points)[p_idx], np.asarray(q_points)[q_idx])
-    partner[p_idx[pa]] = q_idx[qb]
-    free_p = p_idx[np.isin(np.arange(len(p_idx)), pa, invert=True)]
-    free_q = q_idx[np.isin(np.arange(len(q_idx)), qb, invert=True)]
+    free_p = p_idx[partner[p_idx] < 0]
+    taken_q = np.zeros(len(q_coords), dtype=bool)
+    taken_q[q_ret[qb]] = True
+    free_q = q_idx[~taken_q[q_idx]]
     if not len(free_p) or not len(free_q):
         return partner, near_p
     k = min(MAX_CANDIDATES, len(free_q))
@@ -229,17 +250,24 @@ def match_returns(
 
 class RangeMetric(FrameMetric):
     name = "ranges"
-    version = "2"  # 1 was the cell-based definition
+    # 1 was the cell-based definition; 2 de-duplicated only the original, clipped returns far
+    # outside the table onto its edge row (where they paired with each other) and counted points
+    # nearer than the minimum range as returns.
+    version = "3"
     order = 20
     ids = (
-        MetricId("range_rmsd", "m", LOWER, default=True),
-        MetricId("coverage", "share", HIGHER, default=True),
+        MetricId("range_rmsd", "m", LOWER, default=True, role="distortion"),
+        # Below 90 % of the returns paired, a codec is flagged (it cannot win by dropping the scan),
+        # and its range RMSD -- over the paired returns only -- is kept off the RD curves.
+        MetricId("coverage", "share", HIGHER, default=True, guard=Guard(
+            "low_coverage", "low coverage", below=0.9, off_curves=("range_rmsd",), setting="min_coverage")),
         MetricId("false_returns", "share", LOWER, default=True),
     )
     description = (
-        "original and decoded returns paired one-to-one, nearest first, within tolerance x the beam and "
-        "azimuth spacing of each other: RMSD (m) of range differences over pairs; coverage = share of "
-        "original returns with a partner; false_returns = share of decoded returns with no original nearby"
+        "original and decoded returns (each de-duplicated, placeholders nearer than the min range left out) "
+        "paired one-to-one, nearest in 3-D first, within tolerance x the beam and azimuth spacing of each other: "
+        "RMSD (m) of range differences over pairs; coverage = share of original returns with a partner; "
+        "false_returns = share of decoded returns with no partner and no original nearby"
     )
     params = (
         Param("tolerance", "float", 0.5, "pairing window half-width, in beam / azimuth spacings", low=0.01, high=10.0),
@@ -248,19 +276,25 @@ class RangeMetric(FrameMetric):
     def compute(self, ev: Evaluation) -> dict[str, float | None]:
         sensor = ev.frame.sensor
         tol = self.config["tolerance"]
-        # Exact duplicates in the scan are one return (nuScenes writes them, Draco merges them).
+        # Exact duplicates are one return, in both clouds alike (nuScenes writes them, Draco merges
+        # them; a selection codec's second copy of a point would otherwise pair with a neighbour).
         p_points = ev.cached("distinct_points", lambda: distinct_rows(ev.frame.points))
         p_coords, p_range = ev.cached("direction_coordinates", lambda: direction_coordinates(p_points, sensor))
         p_ok = np.isfinite(p_coords[:, 0])
         p_tree = ev.cached("direction_tree", lambda: _tree(p_coords[p_ok], sensor)) if p_ok.any() else None
-        q_coords, q_range = direction_coordinates(ev.decoded, sensor)
-        partner, near_p = match_returns(p_points, ev.decoded, p_coords, q_coords, sensor, tol, p_tree)
-        n_p, n_q = int(p_ok.sum()), len(q_coords)
+        q_points = distinct_rows(ev.decoded)
+        q_coords, q_range = direction_coordinates(q_points, sensor)
+        partner, near_p = match_returns(p_points, q_points, p_coords, q_coords, sensor, tol, p_tree)
+        # Returns only: no-return points (nearer than the min range) are in neither count; a
+        # return outside the table's margin counts, with no partner (and, decoded, as false).
+        n_p = int(((p_range > 0) & (p_range >= sensor.min_range)).sum())
+        q_return = (q_range > 0) & (q_range >= sensor.min_range)
+        n_q = int(q_return.sum())
         paired = partner >= 0
         diff = p_range[paired] - q_range[partner[paired]]
-        is_partner = np.zeros(n_q, dtype=bool)
+        is_partner = np.zeros(len(q_coords), dtype=bool)
         is_partner[partner[paired]] = True
-        false = ~is_partner & ~near_p
+        false = ~is_partner & ~near_p & q_return
         return {
             "range_rmsd": float(np.sqrt(np.mean(diff * diff))) if paired.any() else None,
             "coverage": float(paired.sum()) / n_p if n_p else None,

@@ -11,9 +11,9 @@ class RuntimeMetric(FrameMetric):
     name = "runtime"
     order = 40
     ids = (
-        MetricId("encode_ms", "ms", LOWER, default=True),
-        MetricId("decode_ms", "ms", LOWER, default=True),
-        MetricId("select_ms", "ms", LOWER, default=True),
+        MetricId("encode_ms", "ms", LOWER, default=True, role="runtime"),
+        MetricId("decode_ms", "ms", LOWER, default=True, role="runtime"),
+        MetricId("select_ms", "ms", LOWER, default=True, role="runtime"),
         MetricId("peak_mb", "MiB", LOWER),
     )
     description = (

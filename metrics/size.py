@@ -1,4 +1,4 @@
-"""Rate metrics: what the payload costs on the link (DESIGN.md, "Metrics")."""
+"""Rate metrics: what the payload costs on the link (docs/design.md, "Metrics")."""
 
 from __future__ import annotations
 
@@ -12,9 +12,9 @@ class SizeMetric(FrameMetric):
     name = "size"
     order = 10
     ids = (
-        MetricId("bytes", "B", LOWER, default=True),
-        MetricId("ratio", "x", HIGHER, default=True),
-        MetricId("bits_per_point", "bit", LOWER),
+        MetricId("bytes", "B", LOWER, default=True, role="rate"),
+        MetricId("ratio", "x", HIGHER, default=True, headline=True),
+        MetricId("bits_per_point", "bit", LOWER, role="rate"),
         MetricId("link_kbps", "kB/s", LOWER),
         MetricId("points_in", "pts"),
         MetricId("points_out", "pts"),

@@ -4,7 +4,7 @@ Registered through the ``task_metrics`` entry point; the runner calls each once 
 configuration when the dataset has ground-truth poses. Every number is computed with the fixed
 settings in each class's ``settings`` (part of the result's key).
 
-Ids (DESIGN.md): ``ate_rmse``, ``ate_mean`` (m), ``rot_err_deg``, ``rpe_trans`` (m),
+Ids (docs/design.md): ``ate_rmse``, ``ate_mean`` (m), ``rot_err_deg``, ``rpe_trans`` (m),
 ``rpe_rot_deg``, ``map_points``, ``map_share``, ``icp_failures``, ``occ_iou``, ``occ_precision``,
 ``occ_recall`` (occupancy at 0.2 m). Added: ``mape`` (PocoNet's combined error, mean
 ``|E - I|_F``), the ``odom_*`` odometry variants, and ``occ_*_005`` at 0.05 m.
@@ -22,18 +22,37 @@ from lwbench_metrics.localization import (
     track_against_map,
     track_odometry,
 )
-from lwbench_metrics.occupancy import OCCUPANCY_PARAMS, compare_occupancy, occupied_voxels
 
-from lwbench import HIGHER, LOWER, MetricId, SequenceEvaluation, SequenceMetric, hookimpl
+from lwbench import (
+    ALL_CURVES,
+    HIGHER,
+    LOWER,
+    OCCUPANCY_PARAMS,
+    Guard,
+    MetricId,
+    SequenceEvaluation,
+    SequenceMetric,
+    compare_occupancy,
+    hookimpl,
+    occupied_voxels,
+)
 
-__all__ = ["LocalizationMetric", "OdometryMetric", "OccupancyMetric", "lwbench_metrics"]
+__all__ = [
+    "LocalizationMetric",
+    "OdometryMetric",
+    "OccupancyMetric",
+    "ground_truth",
+    "lwbench_metrics",
+    "pose_ids",
+    "split_drives",
+]
 
 # What depends only on the originals is the same for every codec configuration of a run; it is
 # shared through SequenceEvaluation.cached (the run's sequence stage owns the cache), keyed by
 # what it depends on besides the originals.
 
 
-def _ground_truth(seq: SequenceEvaluation) -> tuple[np.ndarray, int]:
+def ground_truth(seq: SequenceEvaluation) -> tuple[np.ndarray, int]:
     """Ground-truth poses ``(n, 4, 4)`` and the total number of original points."""
 
     def compute():
@@ -45,7 +64,7 @@ def _ground_truth(seq: SequenceEvaluation) -> tuple[np.ndarray, int]:
     return seq.cached("ground_truth", compute)
 
 
-def _drives(seq: SequenceEvaluation) -> tuple[list[int], list[int]] | None:
+def split_drives(seq: SequenceEvaluation) -> tuple[list[int], list[int]] | None:
     """Positions (in ``seq``) of the mapping drive and the tracking drive when the evaluated
     frames span two of the dataset's traversals (at least two frames each), else ``None``."""
     where = {f: k for k, f in enumerate(seq.frame_indices)}
@@ -54,16 +73,19 @@ def _drives(seq: SequenceEvaluation) -> tuple[list[int], list[int]] | None:
     return (drives[0], drives[1]) if len(drives) >= 2 else None
 
 
-def _pose_ids(prefix: str, default: bool) -> tuple[MetricId, ...]:
-    """The trajectory-error ids, shared by map tracking and odometry (``odom_`` prefix)."""
-    return (
-        MetricId(f"{prefix}ate_rmse", "m", LOWER, default=default),
-        MetricId(f"{prefix}ate_mean", "m", LOWER),
-        MetricId(f"{prefix}rot_err_deg", "deg", LOWER),
-        MetricId(f"{prefix}mape", "", LOWER),
-        MetricId(f"{prefix}rpe_trans", "m", LOWER),
-        MetricId(f"{prefix}rpe_rot_deg", "deg", LOWER),
-        MetricId(f"{prefix}icp_failures", "frames", LOWER),
+_POSE_IDS = ("ate_rmse", "ate_mean", "rot_err_deg", "mape", "rpe_trans", "rpe_rot_deg", "icp_failures")
+
+
+def pose_ids(prefix: str, default: bool) -> tuple[MetricId, ...]:
+    """The trajectory-error ids, shared by map tracking and odometry (``odom_`` prefix); the map
+    tracking's (``default``) are what the board shows, plots and flags a failed registration by."""
+    units = {"ate_rmse": "m", "ate_mean": "m", "rot_err_deg": "deg", "mape": "", "rpe_trans": "m",
+             "rpe_rot_deg": "deg", "icp_failures": "frames"}
+    icp = Guard("icp_failures", "ICP failures", above=0) if default else None
+    return tuple(
+        MetricId(f"{prefix}{i}", units[i], LOWER, default=default and i == "ate_rmse",
+                 role="distortion" if default and i == "ate_rmse" else "", guard=icp if i == "icp_failures" else None)
+        for i in _POSE_IDS
     )
 
 
@@ -73,10 +95,13 @@ class LocalizationMetric(SequenceMetric):
     name = "localization"
     order = 50
     ids = (
-        *_pose_ids("", default=True),
+        *pose_ids("", default=True),
         MetricId("map_points", "pts", LOWER),
         MetricId("map_share", "share", LOWER),
-        MetricId("icp_failures_original", "frames", LOWER),
+        # When the *original* scans already fail ICP here, no codec's localization figure means
+        # anything: they are shown n/m and the configurations left off every RD curve.
+        MetricId("icp_failures_original", "frames", LOWER, guard=Guard(
+            "localization_not_meaningful", "loc. n/m", above=0, voids=_POSE_IDS, off_curves=(ALL_CURVES,))),
     )
     version = "3"  # 2: icp_failures_original; 3: a mapping drive and a tracking drive when there are two
     description = (
@@ -103,8 +128,8 @@ class LocalizationMetric(SequenceMetric):
         return world_map, track, tracking
 
     def compute(self, seq: SequenceEvaluation) -> dict[str, float | None]:
-        gt, n_original = _ground_truth(seq)
-        drives = _drives(seq)
+        gt, n_original = ground_truth(seq)
+        drives = split_drives(seq)
         world_map, tracking, tracked = self._track(seq.decoded, gt, drives)
         out = pose_metrics(gt[tracked], tracking)
         out["map_points"] = float(len(world_map))
@@ -126,7 +151,7 @@ class OdometryMetric(SequenceMetric):
 
     name = "odometry"
     order = 55
-    ids = _pose_ids("odom_", default=False)
+    ids = pose_ids("odom_", default=False)
     version = "2"  # 2: with two drives, the tracking drive only (no jump between drives)
     description = (
         "Decoded scans registered to the previous decoded scan (point-to-plane ICP, constant-velocity "
@@ -135,8 +160,8 @@ class OdometryMetric(SequenceMetric):
     settings = dict(ICP_PARAMS)
 
     def compute(self, seq: SequenceEvaluation) -> dict[str, float | None]:
-        gt, _ = _ground_truth(seq)
-        drives = _drives(seq)
+        gt, _ = ground_truth(seq)
+        drives = split_drives(seq)
         tracked = drives[1] if drives is not None else list(range(len(seq.decoded)))  # one drive: no jump
         scans = [seq.decoded[i] for i in tracked]
         return pose_metrics(gt[tracked], track_odometry(scans, gt[tracked][0], self.settings), prefix="odom_")
@@ -153,7 +178,8 @@ class OccupancyMetric(SequenceMetric):
     order = 60
     settings = dict(OCCUPANCY_PARAMS)
     ids = tuple(
-        MetricId(f"occ_{m}{_suffix(v, i == 0)}", "share", HIGHER, default=(i == 0 and m == "iou"))
+        MetricId(f"occ_{m}{_suffix(v, i == 0)}", "share", HIGHER, default=(i == 0 and m == "iou"),
+                 role="distortion" if i == 0 and m == "iou" else "")
         for i, v in enumerate(OCCUPANCY_PARAMS["resolutions"])
         for m in ("iou", "precision", "recall")
     )
@@ -163,7 +189,7 @@ class OccupancyMetric(SequenceMetric):
     )
 
     def compute(self, seq: SequenceEvaluation) -> dict[str, float | None]:
-        gt, _ = _ground_truth(seq)
+        gt, _ = ground_truth(seq)
         sensor = seq.original(0).sensor
         p = self.settings
         out: dict[str, float | None] = {}

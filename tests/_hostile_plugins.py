@@ -64,8 +64,8 @@ class LeakingCodec(_Misbehaving):
 
 
 class HostileDecoder(RepresentationCodec):
-    """A decoder that does what ``mode`` says: ok, hang, crash, bomb (allocate without bound)
-    or slow (a second and a half of CPU)."""
+    """A decoder that does what ``mode`` says: ok, hang, crash, bomb (allocate without bound),
+    slow (a second and a half of CPU) or far (a point 20 km away: no LiDAR's return)."""
 
     name = "test-hostile-decoder"
     params = (Param("mode", "str", "ok"),)
@@ -87,6 +87,8 @@ class HostileDecoder(RepresentationCodec):
             t = time.process_time()
             while time.process_time() - t < 1.5:
                 pass
+        elif mode == "far":
+            return np.array([[2e4, 0.0, 0.0], [1.0, 0.0, 0.0]], np.float32)
         return np.zeros((1, 3), np.float32)
 
 

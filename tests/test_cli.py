@@ -1,4 +1,4 @@
-"""The CLI contract of DESIGN.md: forms, JSON shapes, clear errors instead of tracebacks."""
+"""The CLI contract of docs/design.md: forms, JSON shapes, clear errors instead of tracebacks."""
 
 from __future__ import annotations
 
@@ -158,16 +158,16 @@ def test_a_narrow_terminal_leaves_columns_out_instead_of_folding_numbers(store, 
 
     from rich.console import Console
 
-    from lwbench import cli
+    from lwbench.cli import output
     from lwbench.leaderboard import build_leaderboard
     from lwbench.registry import get_registry
     from lwbench.store import ResultStore
 
     buf = io.StringIO()
-    monkeypatch.setattr(cli, "console", Console(file=buf, width=90))
+    monkeypatch.setattr(output, "console", Console(file=buf, width=90))
     with ResultStore(store, readonly=True) as results:
         entries = build_leaderboard(results, info=get_registry().metric_info())
-    cli._print_table(entries, "ratio", None, get_registry().metric_info())
+    output.print_board(entries, "ratio", None, get_registry().metric_info())
     out = buf.getvalue()
     assert "not shown (terminal too narrow)" in out
     assert all(len(line) <= 90 for line in out.splitlines())
@@ -200,3 +200,54 @@ def test_a_missing_open3d_is_one_line_and_exit_2(tmp_path, kitti_folder):
     assert res.returncode == 2, res.stderr
     assert "Traceback" not in res.stderr and "Open3D cannot be imported" in res.stderr
     assert "failed:" not in res.stdout + res.stderr  # an environment problem is not a codec's failure
+
+
+def test_plugin_commands_load_lazily_and_their_errors_are_one_line(tmp_path):
+    """Importing the CLI loads no plugin; a plugin command that raises an lwbench error gets the
+    same one line and exit status 2 as a built-in one, and a broken hook leaves the others working."""
+    import os
+    import subprocess
+    import sys
+
+    (tmp_path / "cmd_plugin.py").write_text(
+        "import lwbench\n"
+        "@lwbench.hookimpl\n"
+        "def lwbench_register_commands(cli):\n"
+        "    @cli.command('shout')\n"
+        "    def shout(dataset: str = 'nosuch-dataset') -> None:\n"
+        "        lwbench.open_dataset(dataset)\n"
+    )
+    (tmp_path / "broken_cmd.py").write_text(
+        "import lwbench\n"
+        "@lwbench.hookimpl\n"
+        "def lwbench_register_commands(cli):\n"
+        "    raise RuntimeError('no commands today')\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(tmp_path), "LWBENCH_PLUGINS": "cmd_plugin,broken_cmd"}
+    lazy = subprocess.run([sys.executable, "-c", "import sys, lwbench.cli; print('lwbench.registry' in sys.modules)"],
+                          env=env, capture_output=True, text=True)
+    assert lazy.stdout.strip() == "False"
+    res = subprocess.run([sys.executable, "-m", "lwbench.cli", "shout"], env=env, capture_output=True, text=True)
+    assert res.returncode == 2, res.stderr
+    assert res.stderr.strip().startswith("error: unknown dataset 'nosuch-dataset'") and "Traceback" not in res.stderr
+    assert len(res.stderr.strip().splitlines()) == 1
+    listing = subprocess.run([sys.executable, "-m", "lwbench.cli", "--help"], env=env, capture_output=True, text=True)
+    assert listing.returncode == 0 and "shout" in listing.stdout and "Plugin commands" in listing.stdout
+
+
+def test_frames_means_the_first_n_frames_everywhere(tmp_path):
+    """``--frames N`` is the first N frames of the dataset in every command; the simulator, which
+    generates 20 by default, is asked for more when more are wanted (not silently 20)."""
+    from lwbench.registry import get_registry
+    from lwbench.run import RunRequest
+
+    reg = get_registry()
+    (few,) = RunRequest.from_words(reg, codecs=["raw"], frames=3).plans(reg)
+    (many,) = RunRequest.from_words(reg, codecs=["raw"], frames=30).plans(reg)
+    assert "frames" not in few.dataset.params and few.frames == 3  # the default sequence, cut: cache hits stay
+    assert many.dataset.params["frames"] == 30 and many.frames == 30
+    (given,) = RunRequest.from_words(reg, codecs=["raw"], frames=30, dataset_params=["frames=25"]).plans(reg)
+    assert given.dataset.params["frames"] == "25"  # the user's own setting wins
+    res = invoke("simulate", "indoor", "--out", str(tmp_path / "sim"), "--frames", "2")
+    assert res.exit_code == 0, res.output
+    assert len(list((tmp_path / "sim" / "velodyne").glob("*.bin"))) == 2

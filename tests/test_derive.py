@@ -11,6 +11,7 @@ from lwbench import SensorModel, get_sensor
 from lwbench.derive import (
     METHOD_FIRING_MAJOR,
     METHOD_HISTOGRAM,
+    METHOD_PRESET,
     METHOD_RING_FIELD,
     METHOD_RING_MAJOR,
     DataWarning,
@@ -37,7 +38,7 @@ def test_ring_major_order_recovers_the_table_where_the_histogram_cannot():
     assert d.sensor.n_azimuth == HDL64E.n_azimuth  # the step between neighbours, not the count
     assert d.stats["rings"] == 64
     shuffled = pts[np.random.default_rng(0).permutation(len(pts))]
-    with pytest.warns(DataWarning, match=r"guessed from the elevation histogram: \d+ beams.*sensor="):
+    with pytest.warns(DataWarning, match=r"sensor model guessed \(elevation histogram.*\): \d+ beams.*sensor="):
         guess = derive_sensor(shuffled)
     assert guess.method == METHOD_HISTOGRAM and not guess.exact
     assert guess.sensor.n_beams != 64
@@ -146,9 +147,13 @@ def test_hdl32_pcd_in_firing_order_gives_the_hdl32e_table(real_data):
         assert 2100 < d.sensor.n_azimuth < 2250
 
 
-def test_a_scan_order_lwbench_does_not_know_falls_back_with_a_warning(real_data):
+def test_a_scan_order_lwbench_does_not_know_snaps_to_its_preset_with_a_warning(real_data):
+    # A Pandar64 (its table to 0.01 deg) whose laser order is neither ring- nor firing-major: the
+    # histogram found 34 beams; the preset's table fits the elevations (61 rings seen, 3 top ones
+    # face the sky), so the guess is the sensor's 64 beams -- still a guess, and said to be one.
     scan = read_point_file(real_data / "lidar64_static_pcd" / "2021-10-26-16-21-29-468.pcd")
     assert derive_sensor(scan.points, ring=scan.ring).sensor.n_beams == 61
-    with pytest.warns(DataWarning, match="elevation histogram"):
+    with pytest.warns(DataWarning, match=r"guessed \(snapped to preset pandar64"):
         d = derive_sensor(scan.points)
-    assert d.method == METHOD_HISTOGRAM and len(d.notes) == 2
+    assert d.method == METHOD_PRESET and d.guessed and len(d.notes) == 2
+    assert d.sensor.n_beams == 64 and d.sensor.azimuth_step_deg == pytest.approx(0.2, abs=0.002)

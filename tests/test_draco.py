@@ -141,22 +141,61 @@ def test_distinct_points_is_the_first_of_each_bitwise_group() -> None:
     assert len(distinct_points(np.zeros((0, 3), np.float32))) == 0
 
 
-def test_exact_duplicate_points_decode_once_with_an_honest_count() -> None:
+def test_exact_duplicate_points_all_come_back() -> None:
     # nuScenes-like: a quarter of the returns are exact copies of others (issue 11: a frame
-    # of 34,752 points decoded to 25,532 and the header's count made it a failure).
+    # of 34,752 points decoded to 25,532; issue 22: every return must come back).
     frame = scan(8_000, seed=5)
     rng = np.random.default_rng(5)
     copies = frame.points[rng.integers(0, len(frame), 2_700)]
     dup = Frame(np.concatenate([frame.points, copies])[rng.permutation(len(frame) + 2_700)], frame.sensor)
     data = DracoCodec().encode(dup)
     decoded = DracoCodec().decode(data)
-    n_distinct = len(_rows(dup.points))
-    assert Payload.from_bytes(data).meta["n"] == len(decoded) == n_distinct == len(frame)
-    assert_on_grid(frame.points, decoded, quantization_step(dup.points, 14))
-    # The copies cost nothing: the payload equals the one of the scan without them.
-    assert data == DracoCodec().encode(Frame(dup.points[distinct_points(dup.points)], dup.sensor))
+    meta = Payload.from_bytes(data).meta
+    assert meta["n"] == len(decoded) == len(dup) and meta["distinct"] == len(_rows(dup.points)) == len(frame)
+    assert_on_grid(dup.points, decoded, quantization_step(dup.points, 14))
+    # The copies come back as copies: as many repeated rows as the scan had.
+    assert len(decoded) - len(_rows(decoded)) >= len(dup) - len(frame)
+    # A scan without copies is coded as by v2: no attribute, no "distinct" field.
+    plain = DracoCodec().encode(frame)
+    assert "distinct" not in Payload.from_bytes(plain).meta
+    assert len(data) > len(plain)  # the copy counts are paid for
     all_same = Frame(np.tile(np.float32([[1.5, -2.0, 0.25]]), (100, 1)), frame.sensor)
-    np.testing.assert_allclose(DracoCodec().decode(DracoCodec().encode(all_same)), [[1.5, -2.0, 0.25]], atol=1e-6)
+    np.testing.assert_allclose(DracoCodec().decode(DracoCodec().encode(all_same)), all_same.points, atol=1e-6)
+
+
+def test_copy_counts_that_do_not_add_up_are_refused() -> None:
+    frame = scan(2_000, seed=7)
+    dup = Frame(np.concatenate([frame.points, frame.points[:300]]), frame.sensor)
+    data = DracoCodec().encode(dup)
+    body = Payload.from_bytes(data).body
+    codec = DracoCodec()
+    for change in ({"n": len(dup) + 1}, {"n": len(dup) - 1}, {"distinct": len(frame) - 1}, {"distinct": len(dup)}):
+        with pytest.raises(PayloadError):
+            codec.decode(_rewrap(data, body, **change))
+    no_counts = Payload.from_bytes(DracoCodec().encode(frame)).body  # the distinct points, no attribute
+    with pytest.raises(PayloadError, match="copy counts"):
+        codec.decode(_rewrap(data, no_counts))
+
+
+def test_dual_returns_in_one_cell_keep_full_coverage() -> None:
+    """A generated scan with many near-coincident returns: every firing of an off-grid room scan
+    has a second return 0.2 mm behind the first (far below the 14-bit step), as a dual-return
+    sensor writes on a hard surface. Draco keeps both; the range metric pairs both."""
+    from lwbench_metrics.ranges import RangeMetric
+
+    from lwbench import CodecKind, Evaluation
+    from lwbench.testing import room_scan
+
+    room = room_scan(get_sensor("vlp16"), seed=3)
+    second = room.points * np.float32(1 + 0.0002 / 4.0)
+    dual = Frame(np.concatenate([room.points, second]), room.sensor)
+    assert len(distinct_points(dual.points)) == len(dual)
+    data = DracoCodec().encode(dual)
+    decoded = DracoCodec().decode(data)
+    assert len(decoded) == len(dual)
+    values = RangeMetric().compute(Evaluation(dual, data, decoded, CodecKind.REPRESENTATION, {}))
+    assert values["coverage"] == 1.0
+    assert values["range_rmsd"] < quantization_step(dual.points, 14)
 
 
 def test_near_duplicates_are_kept_even_in_one_quantization_cell() -> None:

@@ -12,18 +12,19 @@ ones behind docs/hostile.md.
 from __future__ import annotations
 
 import importlib.util
+import struct
 import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from test_codec_conformance import FAST_PARAMS
 
-from lwbench.fuzz import _split, class_ref, mutate, seed_payloads, shared_server
+from lwbench.fuzz import class_ref, fuzz_sensors, mutate, seed_payloads, shared_server, split_payload
 from lwbench.registry import get_registry
-from lwbench.sensor import _CATALOG
 
 REGISTRY = get_registry()
 EXAMPLES = 30  # per codec: ~1 s each for most, a few for the learned models
@@ -50,9 +51,9 @@ def test_only_payload_errors_escape_a_decoder(codec):
                     "selection payload, fuzzed through every other selector)")
     seeds = seed_payloads(cls, FAST_PARAMS.get(codec))
     assert seeds, f"{codec}: no seed payload could be encoded"
-    bodies = [_split(data).body for _, data in seeds]
+    bodies = [split_payload(data).body for _, data in seeds]
     server = shared_server()
-    server.register_sensors([s.to_dict(full=True) for s in _CATALOG.values()])
+    server.register_sensors(fuzz_sensors())
 
     @settings(max_examples=EXAMPLES, derandomize=True, deadline=None, database=None,
               suppress_health_check=list(HealthCheck))
@@ -96,9 +97,46 @@ def test_the_harness_counts_hangs_crashes_and_bombs(tmp_path):
     # imports the test plugin module there -- 3 s was too little once on a loaded CI machine.
     with DecodeServer(timeout_s=10.0, ceiling_mb=300) as server:
         seen = {}
-        for mode in ("ok", "hang", "crash", "bomb", "slow"):
+        for mode in ("ok", "hang", "crash", "bomb", "slow", "far"):
             seen[mode] = server.decode("_hostile_plugins:HostileDecoder", {"mode": mode}, b"x").verdict
-    assert seen == {"ok": "fine", "hang": "timeout", "crash": "crash", "bomb": "memory", "slow": "over 1 s"}
+    assert seen == {"ok": "fine", "hang": "timeout", "crash": "crash", "bomb": "memory", "slow": "over 1 s",
+                    "far": "absurd"}
+
+
+def test_a_cloud_beyond_its_sensors_reach_is_absurd_and_a_decoder_refuses_it():
+    """Absurd = a point farther than the payload's sensor sees (max range + 50 %), for a codec
+    whose payloads name their sensor; else farther than 10 km. checked_cloud refuses the same."""
+    from lwbench import MAX_COORDINATE, Payload, PayloadError, checked_cloud, get_sensor
+    from lwbench.catalog import SensorCatalog
+    from lwbench.fuzz.server import judge
+
+    named = Payload("x", {"sensor": get_sensor("vlp16").to_wire()}, b"").to_bytes()  # sees to 10 m
+    bare = Payload("x", {}, b"").to_bytes()
+    near, far = np.array([[14.0, 0.0, 0.0]], np.float32), np.array([[16.0, 0.0, 0.0]], np.float32)
+    catalog = SensorCatalog()
+    assert judge(near, named, catalog, seed=named)[0] == "ok"
+    assert judge(far, named, catalog, seed=named)[0] == "absurd"
+    assert judge(far, named, catalog, seed=bare)[0] == "ok"  # a sensor slipped into a sensorless codec's payload
+    assert judge(np.array([[0.0, 0.0, 2 * MAX_COORDINATE]], np.float32), bare, catalog, seed=bare)[0] == "absurd"
+    assert len(checked_cloud(near, "x", max_range=10.0)) == 1
+    for bad in (dict(max_range=10.0), dict(bounds=(-15.0, 15.5))):
+        with pytest.raises(PayloadError, match="farther than|outside the box"):
+            checked_cloud(far, "x", **bad)
+    with pytest.raises(PayloadError, match="farther than 10000 m"):
+        checked_cloud(np.array([[3.4e38, 0.0, 0.0]], np.float32), "x")
+
+
+def test_the_shared_point_serializer_refuses_coordinates_no_lidar_returns():
+    """Every selection codec's payload goes through pack_points: a crafted body of 1e30 m points
+    (float32 or quantized with a huge step) is a PayloadError, not a cloud."""
+    from lwbench import PayloadError, pack_points, unpack_points
+
+    with pytest.raises(PayloadError, match="farther than"):
+        unpack_points(pack_points(np.array([[1e30, 0.0, 0.0]], np.float32)), "random")
+    body = bytearray(pack_points(np.array([[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]], np.float32), "quantized", 0.005))
+    struct.pack_into("<f", body, 5 + 12, 1e30)  # the quantization step
+    with pytest.raises(PayloadError, match="farther than"):
+        unpack_points(bytes(body), "random")
 
 
 @pytest.mark.skipif(importlib.util.find_spec("atheris") is None, reason="atheris is not installed here")

@@ -233,8 +233,9 @@ def test_samples_parameter_sets_the_decoded_count(tunnel):
 
 
 def test_reproject_puts_points_on_cell_centres(tunnel):
-    data = GMMCodec(n_components=20, reproject=True).encode(frame_of(tunnel))
-    q = GMMCodec().decode(data)
+    frame = frame_of(tunnel)
+    data = GMMCodec(n_components=20, reproject=True).encode(frame)
+    q = GMMCodec().use_sensors([frame.sensor]).decode(data)  # the receiver knows the stream's sensor
     img = SENSOR.project(q)
     assert img.valid.sum() == len(q)  # one point per cell
     # unproject lists cells in row-major order; index says which decoded point each cell kept

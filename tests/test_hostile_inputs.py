@@ -88,8 +88,10 @@ def _kitti(tmp_path, name, *, poses=None, sensor=None, times=None, meta=None):
     d = tmp_path / name
     (d / "velodyne").mkdir(parents=True)
     rng = np.random.default_rng(0)
-    for i in range(2):
-        rng.uniform(-5, 5, (3000, 4)).astype("<f4").tofile(d / "velodyne" / f"{i:06d}.bin")
+    for i in range(2):  # x, y, z and a non-negative intensity: one plausible record size (issue 25)
+        xyzi = rng.uniform(-5, 5, (3000, 4))
+        xyzi[:, 3] = rng.uniform(0, 1, 3000)
+        xyzi.astype("<f4").tofile(d / "velodyne" / f"{i:06d}.bin")
     for fname, text in (("poses.txt", poses), ("sensor.json", sensor), ("times.txt", times),
                         ("sensor_metadata.json", meta)):
         if text is not None:

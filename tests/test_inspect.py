@@ -87,7 +87,10 @@ def test_inspect_shows_a_guessed_table_with_its_warning(tmp_path):
     pts = spinning_scan("vlp16", order="ring")
     write_bin(tmp_path / "000000.bin", pts[np.random.default_rng(0).permutation(len(pts))])
     info = describe(tmp_path, get_registry())
-    assert info["derived sensor"]["method"] == "elevation histogram"
+    # No order left: the VLP-16's table is the preset that fits -- a guess, and shown as one.
+    assert info["derived sensor"]["method"] == "preset table fitted to the elevations"
+    assert info["derived sensor"]["guessed"] and "snapped to preset vlp16" in info["derived sensor"]["rule"]
+    assert info["sensor guessed"] is True
     assert "sensor=" in info["derived sensor"]["warnings"][0]
     assert len(info["derived sensor"]["order readings rejected"]) == 2
 

@@ -207,7 +207,7 @@ def test_an_uncapped_raw_stream_delivers_every_frame_and_the_raw_map(moving_room
 
 
 def test_a_restarted_base_resumes_and_corrupted_payloads_never_reach_the_map(moving_room, tmp_path):
-    from lwbench_metrics.occupancy import OccupancyMap
+    from lwbench import OccupancyMap
 
     n = 40  # 10 s: a restarted base takes seconds to come up on a loaded machine (imports, warm-up)
     settings = StreamSettings(frames=n, drain_s=1.0, restart_at=0.9, restart_down_s=0.3)

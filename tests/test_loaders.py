@@ -11,7 +11,7 @@ from _scans import spinning_scan, write_bin
 
 from lwbench import SensorModel, get_sensor, import_open3d
 from lwbench.errors import DataFormatError, DataWarning, ParameterError
-from lwbench.io import read_kitti_bin, read_pose_file, write_kitti_sequence
+from lwbench.io import read_kitti_bin, read_point_file, read_pose_file, write_kitti_sequence
 from lwbench.loaders import KittiDataset, PointFileDataset
 
 o3d = import_open3d()
@@ -133,8 +133,12 @@ def test_a_flat_folder_of_bins_takes_one_naming_scheme(tmp_path):
         ds = KittiDataset(path=str(tmp_path))
     assert [p.name for p in ds.files] == ["scan_0.bin", "scan_1.bin", "scan_2.bin"]
     np.zeros(10, "<f4").tofile(tmp_path / "times_1.bin")
-    np.zeros(10, "<f4").tofile(tmp_path / "times_2.bin")  # now two schemes of 3 files each
-    with pytest.raises(DataFormatError, match=r"named in several ways \((scan|times)_N.bin, (scan|times)_N.bin\)"):
+    np.zeros(10, "<f4").tofile(tmp_path / "times_2.bin")  # 3 per-point time files are still no scans
+    with pytest.warns(DataWarning, match="times_0.bin"):
+        assert [p.name for p in KittiDataset(path=str(tmp_path)).files] == ["scan_0.bin", "scan_1.bin", "scan_2.bin"]
+    for i in range(3):
+        np.zeros(10, "<f4").tofile(tmp_path / f"other_{i}.bin")  # now two schemes of 3 scans each
+    with pytest.raises(DataFormatError, match=r"named in several ways \((scan|other)_N.bin, (scan|other)_N.bin\)"):
         KittiDataset(path=str(tmp_path))
 
 
@@ -243,3 +247,81 @@ def test_kitti00_derived_sensor_is_the_hdl64e(real_data):
     assert ds.sensor.n_beams == 64 and 2000 <= ds.sensor.n_azimuth <= 2100
     assert ds.sensor_choice.derivation.method == "ring-major order"
     assert len(ds[1]) == 124_605  # frame 1 is checked against frame 0's model: same sensor
+
+
+# ----------------------------------------------------------------- layouts read as they are (issue 25)
+def test_a_folder_of_nuscenes_sweeps_from_two_time_zones_loads(tmp_path):
+    from test_formats import _nuscenes_points
+
+    # nuScenes names carry the log's UTC offset: Boston's -0400 and Singapore's +0800 side by side.
+    for i, zone in enumerate(("-0400", "+0800", "-0400")):
+        name = f"n008-2018-08-01-15-16-36{zone}__LIDAR_TOP__15331516035475{i}0.pcd.bin"
+        _nuscenes_points().tofile(tmp_path / name)
+    ds = PointFileDataset(path=str(tmp_path))
+    assert len(ds) == 3 and len(ds[2]) == 8000 and ds[2].ring is not None
+
+
+def test_raw_scans_beside_per_point_time_files_load_with_their_times(tmp_path):
+    scans = [spinning_scan("vlp16", order="firing", seed=i) for i in range(2)]
+    for i, pts in enumerate(scans):
+        write_bin(tmp_path / f"raw_{i:02d}.bin", pts)
+        np.linspace(0.0, 0.1, len(pts)).astype("<f8").tofile(tmp_path / f"times_{i:02d}.bin")
+    with pytest.warns(DataWarning, match="times_00.bin"):
+        ds = KittiDataset(path=str(tmp_path))
+    assert [p.name for p in ds.files] == ["raw_00.bin", "raw_01.bin"]
+    f = ds[1]
+    assert len(f) == len(scans[1]) and f.time is not None
+    np.testing.assert_allclose(f.time, np.linspace(0.0, 0.1, len(scans[1])))
+    assert "per-point times from" in ds.source_info()
+
+
+def _vtk(path, pts: np.ndarray, intensity: np.ndarray, *, declared: int | None = None) -> None:
+    """Legacy ASCII VTK polydata as libpointmatcher writes it (POINTS, VERTICES, POINT_DATA)."""
+    n = len(pts)
+    lines = ["# vtk DataFile Version 3.0", "File created by libpointmatcher", "ASCII", "DATASET POLYDATA",
+             f"POINTS {declared or n} float", *(f"{x:.6f} {y:.6f} {z:.6f}" for x, y, z in pts),
+             f"VERTICES {n} {2 * n}", *(f"1 {i}" for i in range(n)), f"POINT_DATA {n}",
+             "SCALARS intensity float", "LOOKUP_TABLE default", *(f"{v:.6f}" for v in intensity)]
+    path.write_text("\n".join(lines) + "\n")
+
+
+def test_vtk_polydata_scans_load_with_their_intensity(tmp_path):
+    pytest.importorskip("vtkmodules")
+    pts = spinning_scan("vlp16", order="firing")[:3000]
+    inten = np.linspace(0, 1, len(pts)).astype(np.float32)
+    for i in range(2):
+        _vtk(tmp_path / f"cloud_{i}.vtk", pts, inten)
+    ds = PointFileDataset(path=str(tmp_path))
+    assert PointFileDataset.sniff(tmp_path) and len(ds) == 2
+    np.testing.assert_allclose(ds[0].points, pts, atol=1e-5)
+    np.testing.assert_allclose(ds[0].intensity, inten, atol=1e-5)
+    _vtk(tmp_path / "cut.vtk", pts, inten, declared=len(pts) + 500)
+    with pytest.raises(DataFormatError, match="declares 3500 points"):
+        read_point_file(tmp_path / "cut.vtk")
+    (tmp_path / "grid.vtk").write_text("# vtk DataFile Version 3.0\nx\nASCII\nDATASET STRUCTURED_POINTS\n")
+    with pytest.raises(DataFormatError, match="POLYDATA"):
+        read_point_file(tmp_path / "grid.vtk")
+
+
+def test_a_later_scan_beyond_the_derived_range_window_is_said(tmp_path):
+    near = spinning_scan("vlp16", order="firing", ranges=(4.0, 20.0))
+    far = spinning_scan("vlp16", order="firing", ranges=(4.0, 35.0), seed=1)
+    write_bin(tmp_path / "000000.bin", near)
+    write_bin(tmp_path / "000001.bin", far)
+    ds = KittiDataset(path=str(tmp_path))
+    assert ds.sensor.max_range == 20.0
+    with pytest.warns(DataWarning, match=r"000001.bin: \d+ returns beyond the max range 20 m.*max_range=M"):
+        ds[1]
+    wide = KittiDataset(path=str(tmp_path), max_range=40.0)
+    assert wide.sensor.max_range == 40.0
+
+
+def test_a_ring_field_with_placeholders_gives_the_real_table_and_step():
+    from lwbench.testing import HDL32_NOMINAL, hdl32_ring_scan
+
+    frame = hdl32_ring_scan(firings=1086)  # every firing written, misses as one placeholder point
+    s = frame.sensor  # derived from the ring field, as the loaders do
+    assert s.n_beams == 32
+    np.testing.assert_allclose(s.elevations_deg, HDL32_NOMINAL, atol=0.16)  # lasers are up to 0.15 off
+    assert s.azimuth_step_deg == pytest.approx(360 / 1086)  # firings from the points per ring
+    assert s.min_range > 1.0  # the placeholders (5e-5 m) are no returns

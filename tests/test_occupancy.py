@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from _task_scene import TEST32, StreetDataset
-from lwbench_metrics.occupancy import compare_occupancy, occupied_voxels, voxel_keys
 from lwbench_metrics.task import OccupancyMetric
 
-from lwbench import SensorModel, SequenceEvaluation
+from lwbench import SensorModel, SequenceEvaluation, compare_occupancy, occupied_voxels
+from lwbench.geometry import voxel_keys
 
 OCC_IDS = {"occ_iou", "occ_precision", "occ_recall"}
 
@@ -105,7 +105,7 @@ def test_test_sensor_is_street_sized():
 
 def test_the_live_map_equals_the_batch_map_in_any_order(street):
     """What lwbench stream's base keeps: one insert per received scan, the same map exactly."""
-    from lwbench_metrics.occupancy import OccupancyMap
+    from lwbench import OccupancyMap
 
     scans, poses, sensor = _originals(street), np.stack([street[i].pose for i in range(len(street))]), TEST32
     for voxel in (0.2, 0.05):

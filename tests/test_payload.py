@@ -84,14 +84,15 @@ def test_point_body_of_wrong_size_raises():
 
 
 def test_a_derived_sensor_travels_as_a_short_id_not_its_table():
-    from lwbench import SensorModel, register_sensor
+    from lwbench import SensorModel
     from lwbench.registry import get_registry
     from lwbench.testing import room_scan
 
     table = tuple(float(e) for e in np.linspace(-24.9, 2.1, 64) + np.random.default_rng(0).normal(0, 0.05, 64))
     sensor = SensorModel("derived", table, 360 / 2000, 0.9, 120.0, 10.0)
     frame = room_scan(sensor, seed=1)
-    codec = get_registry().codec("vsgp")(num_inducing=50)
+    vsgp = get_registry().codec("vsgp")
+    codec = vsgp(num_inducing=50)
     data = codec.encode(frame)
     meta = Payload.from_bytes(data).meta
     assert meta["sensor"] == {"id": sensor.sensor_id}
@@ -99,15 +100,50 @@ def test_a_derived_sensor_travels_as_a_short_id_not_its_table():
     assert header < 120, header  # the full table would be ~1.5 kB of JSON
     fresh = SensorModel("derived", table, 360 / 2000, 0.9, 120.0, 10.0)
     assert fresh.sensor_id == sensor.sensor_id
-    # A receiver that was never told about the sensor refuses clearly ...
-    from lwbench import sensor as sensor_module
-
-    sensor_module._CATALOG.pop(sensor.sensor_id, None)
+    # The encoder's own instance knows what it wrote ...
+    assert len(codec.decode(data)) > 0
+    # ... a receiver handed the stream's sensors resolves among those only: told about another
+    # sensor, it refuses clearly, whatever else this process encoded before ...
+    other = SensorModel("other", table[:-1], 360 / 2000, 0.9, 120.0, 10.0)
     with pytest.raises(PayloadError, match="not known to this receiver"):
-        get_registry().codec("vsgp")().decode(data)
-    # ... and decodes once the stream's table has arrived.
-    register_sensor(fresh)
-    assert len(get_registry().codec("vsgp")().decode(data)) > 0
+        vsgp().use_sensors([other]).decode(data)
+    # ... and decodes once it is handed the stream's table.
+    assert len(vsgp().use_sensors([fresh]).decode(data)) > 0
+    # A bare decoder (code written before use_sensors) still finds it, with a deprecation warning.
+    with pytest.warns(DeprecationWarning, match="use_sensors"):
+        assert len(vsgp().decode(data)) > 0
+
+
+def test_a_run_decodes_from_the_bytes_and_the_dataset_not_from_process_state():
+    """The runner hands the fresh decoder the frame's sensor: it never reaches the deprecated
+    process memory (which would warn), even for a derived sensor named by id."""
+    import warnings
+
+    from lwbench.registry import get_registry
+    from lwbench.run.evaluate import encode_decode
+    from lwbench.run.plan import CodecConfig
+    from lwbench.testing import check_frames
+
+    frame = check_frames()["hdl32-ring"]
+    assert frame.sensor.to_wire() == {"id": frame.sensor.sensor_id}
+    cls = get_registry().codec("rangeimage")
+    config = CodecConfig("rangeimage", cls().config)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DeprecationWarning)
+        enc = encode_decode(cls, config, cls(**config.params), frame)
+    assert len(enc.decoded) > 0
+
+
+def test_the_deprecated_register_sensor_still_lets_old_scripts_decode():
+    from lwbench import SensorModel, register_sensor
+    from lwbench.registry import get_registry
+    from lwbench.testing import room_scan
+
+    sensor = SensorModel("derived-old", tuple(np.linspace(-10, 10, 8)), 1.0, 0.1, 20.0, 10.0)
+    data = get_registry().codec("rangeimage")().encode(room_scan(sensor, seed=2))
+    with pytest.warns(DeprecationWarning, match="use_sensors"):
+        register_sensor(sensor)
+    assert len(get_registry().codec("rangeimage")().decode(data)) > 0
 
 
 def test_a_sensor_id_names_exactly_one_table():

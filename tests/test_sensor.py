@@ -77,3 +77,37 @@ def test_derive_without_rings_finds_the_beams_from_the_elevation_histogram():
 def test_ouster_metadata_gives_its_own_beam_table(real_data):
     s = read_ouster_metadata(real_data / "ouster_os1-128_seq3" / "sensor_metadata.json")
     assert s.n_beams == 128 and s.n_azimuth == 1024 and s.rate_hz == 10.0
+
+
+def test_every_preset_has_a_range_noise_from_its_datasheet_and_a_source():
+    from lwbench.sensor_specs import DERIVED_RANGE_NOISE_M, SENSOR_SPECS
+
+    assert set(SENSOR_SPECS) == set(SENSOR_PRESETS)
+    for name, spec in SENSOR_SPECS.items():
+        s = get_sensor(name)
+        assert 0.005 <= s.range_noise_m <= 0.05 and s.range_noise_m == spec.range_noise_m, name
+        assert spec.source and s.n_beams == len(spec.elevations_deg), name
+    for name, beams in (("hdl32e", 32), ("vlp32c", 32), ("pandar64", 64), ("pandarqt", 64), ("os0-128", 128)):
+        assert get_sensor(name).n_beams == beams
+    assert SensorModel("d", (-1.0, 1.0), 0.5, 0.1, 50.0, 10.0).range_noise_m == DERIVED_RANGE_NOISE_M
+
+
+def test_range_noise_round_trips_and_old_dicts_still_read():
+    s = SensorModel("mine", (-10.0, 0.0, 10.0), 0.5, 0.2, 30.0, 5.0, range_noise_m=0.012)
+    d = s.to_dict()
+    assert d["range_noise_m"] == 0.012 and SensorModel.from_dict(d) == s
+    old = {k: v for k, v in d.items() if k != "range_noise_m"}  # a sensor.json written before it existed
+    back = SensorModel.from_dict(old)
+    assert back.range_noise_m == 0.03 and back.elevations_deg == s.elevations_deg
+    # The id is the geometry's: a payload that named the old model by id still finds it.
+    assert back.sensor_id == s.sensor_id
+    import hashlib
+    import json
+
+    blob = json.dumps(old, sort_keys=True, separators=(",", ":")).encode()
+    assert s.sensor_id == hashlib.sha256(blob).hexdigest()[:16]
+    with pytest.raises(TypeError, match="range_noise_m"):
+        SensorModel.from_dict({**d, "range_noise_m": "loud"})
+    with pytest.raises(ValueError, match="range noise"):
+        SensorModel("x", (0.0,), 1.0, 0.1, 10.0, 10.0, range_noise_m=-1.0)
+    assert get_sensor("hdl64e").to_dict() == {"preset": "hdl64e"}

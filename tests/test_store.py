@@ -103,3 +103,62 @@ def test_a_store_from_a_newer_lwbench_is_refused(tmp_path):
     conn.close()
     with pytest.raises(StoreError, match="newer"):
         ResultStore(path, readonly=True)
+
+
+def test_decoded_clouds_are_files_beside_the_store_content_addressed_and_compressed(tmp_path):
+    import numpy as np
+
+    from lwbench.artifacts import CloudFiles, pack_array, unpack_array
+
+    rng = np.random.default_rng(0)
+    cloud = (rng.normal(0, 10, (5000, 3))).astype(np.float32)
+    path = tmp_path / "r.sqlite"
+    with ResultStore(path) as store:
+        store.put(_row(0), {"decoded": cloud})
+        store.put(_row(1), {"decoded": cloud})  # the same cloud: one file
+        store.put_artifact("original:sim:abc:0", "points", cloud[:10])
+    files = sorted((tmp_path / "r.clouds").rglob("*.lwbc"))
+    assert len(files) == 2 and path.stat().st_size < 64 * 1024  # the store keeps names, not clouds
+    assert sum(f.stat().st_size for f in files) < cloud.nbytes  # shuffled + zstd
+    with ResultStore(path, readonly=True) as store:
+        (a, b) = (store.artifact(r.evaluation, "decoded") for r in store.rows())
+        assert np.array_equal(a, cloud) and np.array_equal(b, cloud) and a.dtype == np.float32
+        assert np.array_equal(store.artifact("original:sim:abc:0", "points"), cloud[:10])
+        assert store.artifact("nothing", "decoded") is None
+    assert np.array_equal(unpack_array(pack_array(np.zeros((0, 3), np.float32))), np.zeros((0, 3), np.float32))
+    # A damaged or edited file is an error, never a silently different cloud.
+    files[0].write_bytes(files[0].read_bytes()[:-3])
+    with pytest.raises(StoreError, match="damaged|does not hold"):
+        CloudFiles.beside(path).get(files[0].stem)
+
+
+def test_an_older_stores_clouds_in_sqlite_stay_readable_and_new_ones_go_beside_it(tmp_path):
+    """A schema-2 store kept decoded clouds as zstd .npy blobs in the artifacts table: they are
+    read as before, a run into it migrates it and writes its new clouds as files."""
+    import io
+
+    import numpy as np
+    import zstandard
+
+    path = tmp_path / "old.sqlite"
+    cloud = np.arange(30, dtype=np.float32).reshape(10, 3)
+    with ResultStore(path) as store:
+        store.put(_row(0))
+    buf = io.BytesIO()
+    np.save(buf, cloud, allow_pickle=False)
+    conn = sqlite3.connect(path)
+    with conn:
+        conn.execute("DROP TABLE artifact_files")
+        conn.execute("UPDATE meta SET value = '2' WHERE key = 'schema_version'")
+        conn.execute("INSERT INTO artifacts VALUES (?, 'decoded', ?)",
+                     (_row(0).evaluation, zstandard.ZstdCompressor().compress(buf.getvalue())))
+    conn.close()
+    with ResultStore(path, readonly=True) as store:
+        assert np.array_equal(store.artifact(_row(0).evaluation, "decoded"), cloud)
+    with ResultStore(path) as store:
+        store.put(_row(1), {"decoded": cloud * 2})
+        assert np.array_equal(store.artifact(_row(0).evaluation, "decoded"), cloud)
+        assert np.array_equal(store.artifact(_row(1).evaluation, "decoded"), cloud * 2)
+    assert len(list((tmp_path / "old.clouds").rglob("*.lwbc"))) == 1
+    conn = sqlite3.connect(path)
+    assert conn.execute("SELECT value FROM meta WHERE key='schema_version'").fetchone()[0] == str(SCHEMA_VERSION)

@@ -1,9 +1,12 @@
-"""How far real returns sit from the rays a range image decodes them onto.
+"""How far ``rangeimage`` puts each return from where it was, and what the offsets cost.
 
-This is the error ``rangeimage`` adds even in ``mode=lossless`` (which reproduces the range
-image bit for bit): each kept return is put back on one ray per cell -- the cell centre
-(``refine=none``) or its beam's fitted ray (``refine=beam``) -- and returns that shared a cell
-with a nearer one are dropped. The rate-distortion tables themselves come from
+Every return is decoded (version 4 keeps them all), on its cell's anchored ray moved by its
+quantized azimuth / elevation offset: with ``offset_step=s`` (in grid spacings) a direction is
+within ``s / 2`` spacings of the original's along each axis; ``lossless_directions`` leaves only
+float32 rounding. This prints, per shared real folder (first frame, the loader's sensor model),
+the 3-D distance of each decoded return from its own original -- paired exactly through the
+encoder's ``Layers.source``, with ``mode=lossless`` so that only the direction moves it -- and the
+payload bytes at the default 1 cm step. The rate-distortion tables themselves come from
 ``tools/codecs_rd.sh`` (``lwbench run`` + ``lwbench leaderboard``).
 
     python tools/codecs_rd.py PATH/TO/shared/data/real
@@ -11,54 +14,42 @@ with a nearer one are dropped. The rate-distortion tables themselves come from
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import numpy as np
-from lwbench_plugins.rangeimage.beams import fit_beam_table, read_beam_table, unproject_refined
+from lwbench_plugins.rangeimage import RangeImageCodec
 
-from lwbench import SensorModel, get_sensor
-from lwbench.loaders import KittiDataset
+from lwbench.registry import get_registry
+from lwbench.run.plan import resolve_dataset
 
-
-def cases(real: Path) -> list[tuple[str, dict, str, str | None]]:
-    """(folder, loader parameters, label, grid) for each comparison."""
-    ouster, kitti = str(real / "ouster_os1-128_seq3"), str(real / "kitti00_frames0-1")
-    return [
-        ("ouster_os1-128_seq3", {"path": ouster}, "sensor_metadata.json beam table", None),
-        ("ouster_os1-128_seq3", {"path": ouster}, "os1-128 preset (uniform)", "os1-128"),
-        ("kitti00_frames0-1", {"path": kitti, "sensor": "hdl64e"}, "hdl64e preset", None),
-        ("kitti00_frames0-1", {"path": kitti, "sensor": "hdl64e"}, "derived from the scan", "derived"),
-    ]
+SETTINGS = (
+    ("offset_step=1 (the cell's ray)", {"offset_step": 1.0}),
+    ("offset_step=0.5", {"offset_step": 0.5}),
+    ("offset_step=0.25 (default)", {}),
+    ("offset_step=0.0625", {"offset_step": 0.0625}),
+    ("lossless_directions", {"lossless_directions": True}),
+)
 
 
 def main() -> None:
-    import sys
-
     if len(sys.argv) != 2:
         raise SystemExit(__doc__)
-    print("| dataset | sensor grid | points | kept (1 per cell) | off-ray mean (m), cell centres "
-          "| p95 | off-ray mean (m), refine=beam | p95 |")
-    print("|---|---|---|---|---|---|---|---|")
-    for ds_name, params, label, which in cases(Path(sys.argv[1])):
-        frames = list(KittiDataset(**params))
-        centre, refined, kept, n = [], [], 0, 0
-        for frame in frames:
-            sensor = frame.sensor
-            if which == "derived":
-                sensor = SensorModel.from_points(frame.points)
-            elif which is not None:
-                sensor = get_sensor(which)
-            image = sensor.project(frame.points)
-            original = frame.points[image.index[image.valid]]
-            centre.append(np.linalg.norm(sensor.unproject(image.ranges) - original, axis=1))
-            table = read_beam_table(fit_beam_table(sensor, frame.points, image), sensor)
-            refined.append(np.linalg.norm(unproject_refined(sensor, image.ranges, *table) - original, axis=1))
-            kept += len(original)
-            n += len(frame)
-        c, r = np.concatenate(centre), np.concatenate(refined)
-        print(f"| {ds_name} | {label} ({sensor.n_beams}×{sensor.n_azimuth}) | {n / len(frames):,.0f} "
-              f"| {kept / n:.3f} | {c.mean():.4f} | {np.percentile(c, 95):.4f} "
-              f"| {r.mean():.4f} | {np.percentile(r, 95):.4f} |")
+    real = Path(sys.argv[1])
+    registry = get_registry()
+    print("| folder | offsets | returns decoded | off-position mean (mm) | p95 (mm) | max (mm) | bytes (1 cm step) |")
+    print("|---|---|---|---|---|---|---|")
+    for folder in sorted(p for p in real.iterdir() if p.is_dir()):
+        spec = resolve_dataset(registry, str(folder), {}, 0)
+        frame = registry.dataset(spec.name)(**spec.params)[0]
+        for label, params in SETTINGS:
+            exact = RangeImageCodec(mode="lossless", **params)
+            _, layers, _ = exact.layers(frame)
+            decoded = RangeImageCodec().decode(exact.encode(frame))
+            gap = np.linalg.norm(decoded.astype(np.float64) - frame.points[layers.source], axis=1) * 1000
+            size = len(RangeImageCodec(**params).encode(frame))
+            print(f"| {folder.name} | {label} | {len(decoded):,} of {len(frame):,} | {gap.mean():.2f} "
+                  f"| {np.percentile(gap, 95):.2f} | {gap.max():.2f} | {size:,} |", flush=True)
 
 
 if __name__ == "__main__":

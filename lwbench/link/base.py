@@ -4,11 +4,12 @@
 It warms its decoder up on a synthetic scan, listens on 127.0.0.1 (the configured port, or any;
 it prints ``listening PORT``) and serves one scout connection at a time:
 
-- HELLO: the stream header; the sensor table is registered, so payloads naming it by id decode;
-- FRAME: the payload is checked and decoded (:func:`lwbench.run.evaluate.checked_cloud`); a
+- HELLO: the stream header; its sensor table is handed to the decoder, so payloads naming it by
+  id decode;
+- FRAME: the payload is checked and decoded (:func:`lwbench.run.evaluate.decoded_cloud`); a
   payload that fails -- corrupted on the wire, say -- is *rejected* and counted, never put in the
   map. A decoded cloud is saved (``frames/SEQ.npy``), logged, and inserted into the
-  :class:`~lwbench_metrics.occupancy.OccupancyMap` by a second thread, so the map never holds
+  :class:`~lwbench.occupancy.OccupancyMap` by a second thread, so the map never holds
   up the next frame's reception;
 - END: the map is finished and written (``map.npy``: occupied voxel keys), and the base exits.
 
@@ -36,7 +37,7 @@ __all__ = ["main"]
 def _warm_up(codec_cls, params: dict) -> None:
     """Encode and decode a small synthetic scan once: first-call costs (imports, JIT) are paid
     before the stream starts, as on a base that has been running."""
-    from lwbench.testing import tunnel_scan
+    from lwbench.synthetic import tunnel_scan
 
     frame = tunnel_scan(0)
     frame = frame.subset(np.arange(0, len(frame), 8))
@@ -66,12 +67,12 @@ class Base:
 
     # -- the map ------------------------------------------------------------------------------
     def _new_map(self, stream: dict) -> None:
-        from lwbench_metrics.occupancy import OccupancyMap
-
+        from lwbench.occupancy import OccupancyMap
         from lwbench.streamfile import StreamHeader
 
         header = StreamHeader.from_dict(stream, "HELLO")
-        (sensor,) = header.register_sensors("HELLO")
+        (sensor,) = header.sensor_models("HELLO")
+        self.decoder.use_sensors([sensor])
         if self.map is None:
             self.map = OccupancyMap(sensor, float(self.cfg["voxel"]))
 
@@ -106,12 +107,12 @@ class Base:
     # -- receiving ----------------------------------------------------------------------------
     def frame(self, seq: int, due: float, body: bytes, recv_end: float) -> None:
         from lwbench.payload import Payload
-        from lwbench.run.evaluate import checked_cloud
+        from lwbench.run.evaluate import decoded_cloud
 
         event: dict = {"ev": "frame", "seq": seq, "due": due, "recv_end": recv_end, "bytes": len(body)}
         try:
             payload = Payload.from_bytes(body, expect_codec=self.codec_cls.name)
-            points = checked_cloud(self.codec_cls.name, self.decoder.decode(body))
+            points = decoded_cloud(self.codec_cls.name, self.decoder.decode(body))
         except Exception as exc:  # noqa: BLE001 - a bad payload is rejected and counted, whatever the error
             error = f"{type(exc).__name__}: {exc}"
             self.log({**event, "status": "rejected", "dec_end": time.monotonic(), "error": error})

@@ -154,7 +154,7 @@ def wire_pose(pose: np.ndarray | None) -> np.ndarray | None:
 
 def reference_map(frames: list, voxel: float) -> np.ndarray | None:
     """The map the base would build from every raw scan (None without poses)."""
-    from lwbench_metrics.occupancy import occupied_voxels
+    from lwbench.occupancy import occupied_voxels
 
     if any(f.pose is None for f in frames):
         return None
@@ -357,7 +357,7 @@ def _collect(work: Path, codec: str, link: LinkModel, settings: StreamSettings, 
     keys = np.load(work / "map.npy", allow_pickle=False) if (work / "map.npy").is_file() else None
     iou = None
     if keys is not None and reference is not None:
-        from lwbench_metrics.occupancy import compare_occupancy
+        from lwbench.occupancy import compare_occupancy
 
         iou = compare_occupancy(reference, keys)["iou"]
         iou = 0.0 if iou is None and len(reference) else iou

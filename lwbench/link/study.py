@@ -113,9 +113,9 @@ def ratio_line(runs: Sequence[StreamRun], a: str = "raw", b: str = "vsgp") -> st
 
 def fig6d(runs: Sequence[StreamRun], out: Path, name: str = "fig6d", title: str = "") -> list[Path]:
     """Rate over time and accumulated data per codec, log scale (the paper's Fig. 6d), PNG + SVG."""
-    from lwbench.report import _plt
+    from lwbench.plotting import pyplot, save_png_svg
 
-    plt = _plt()
+    plt = pyplot()
     fig, (ax_rate, ax_acc) = plt.subplots(1, 2, figsize=(10, 3.8))
     for r in runs:
         t, rate, acc = r.series()
@@ -143,9 +143,6 @@ def fig6d(runs: Sequence[StreamRun], out: Path, name: str = "fig6d", title: str 
     ax_acc.legend(fontsize=7, loc="lower right")
     fig.suptitle(title or "lwbench stream: scout -> base", fontsize=10)
     fig.tight_layout()
-    out.mkdir(parents=True, exist_ok=True)
-    paths = [out / f"{name}.png", out / f"{name}.svg"]
-    fig.savefig(paths[0], dpi=150, bbox_inches="tight")
-    fig.savefig(paths[1], bbox_inches="tight", metadata={"Date": None})
+    save_png_svg(fig, out, name)
     plt.close(fig)
-    return paths
+    return [out / f"{name}.png", out / f"{name}.svg"]

@@ -5,29 +5,39 @@
 3. :mod:`.record` -- results become rows with keys and provenance, decoded clouds artifacts;
 4. :mod:`.sequence` -- sequence metrics over a configuration's recorded frames;
 
-with :mod:`.execute` (where evaluations run) and :mod:`.runner` (the four in order). The
+with :mod:`.execute` (where evaluations run) and :mod:`.runner` (the four in order); a
+:class:`~.request.RunRequest` (what the command line, a run file -- :mod:`.config` -- or a gate
+asks for) becomes plans and a :class:`~.request.Study` in :mod:`.request`. The
 leaderboard (:mod:`lwbench.leaderboard`) reads what they stored.
 """
 
 from .evaluate import Evaluator, FrameResult
-from .execute import DEFAULT_TIMEOUT_S, FrameTask, InProcessExecutor, LocalExecutor, ProcessExecutor, Worker
+from .execute import DEFAULT_TIMEOUT_S, FrameTask, InProcessExecutor, ProcessExecutor, Worker
 from .plan import (
     CodecConfig,
     DatasetSpec,
     RunPlan,
     config_label,
     expand_codec_configs,
+    frames_for,
     parse_assignments,
+    parse_metric_params,
     parse_sweeps,
     plan_run,
     preflight,
     resolve_dataset,
 )
 from .record import Provenance, RowFactory
+from .request import DEFAULT_STORE, DatasetRequest, RunRequest, Study, StudyOutcome
 from .runner import Progress, Runner, RunSummary
 from .sequence import SequenceStage
 
 __all__ = [
+    "DEFAULT_STORE",
+    "DatasetRequest",
+    "RunRequest",
+    "Study",
+    "StudyOutcome",
     "CodecConfig",
     "DEFAULT_TIMEOUT_S",
     "InProcessExecutor",
@@ -36,7 +46,6 @@ __all__ = [
     "Evaluator",
     "FrameResult",
     "FrameTask",
-    "LocalExecutor",
     "Progress",
     "Provenance",
     "RowFactory",
@@ -47,7 +56,9 @@ __all__ = [
     "Worker",
     "config_label",
     "expand_codec_configs",
+    "frames_for",
     "parse_assignments",
+    "parse_metric_params",
     "parse_sweeps",
     "plan_run",
     "preflight",

@@ -34,14 +34,15 @@ from typing import Any
 from lwbench.errors import ParameterError
 from lwbench.registry import Registry
 
-from .plan import RunPlan, plan_run
+from .plan import RunPlan
+from .request import DatasetRequest, RunRequest
 
 if sys.version_info >= (3, 11):
     import tomllib
 else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
-__all__ = ["RunFile", "load_run_file"]
+__all__ = ["RunFile", "load_run_file", "read_run_file"]
 
 _TOP = {"store", "frames", "seeds", "sequence_metrics", "workers", "dataset", "codec", "metric_params"}
 _DATASET = {"name", "params"}
@@ -65,47 +66,51 @@ def _as_list(value: Any) -> list:
     return list(value) if isinstance(value, list) else [value]
 
 
-def load_run_file(path: str | Path, registry: Registry) -> RunFile:
-    """Every :class:`RunPlan` a run file asks for (one per dataset and seed), validated."""
+def _named(tables: list, what: str, allowed: set[str], path: Path) -> list[dict]:
+    for i, t in enumerate(tables):
+        _check_keys(t, allowed, f"{path}: [[{what}]] {i + 1}")
+        if "name" not in t:
+            raise ParameterError(f"{path}: [[{what}]] {i + 1} has no name")
+    return tables
+
+
+def read_run_file(path: str | Path) -> RunRequest:
+    """The :class:`RunRequest` a run file describes (every key checked; plugins are checked
+    when the request is planned)."""
     path = Path(path)
     try:
         doc = tomllib.loads(path.read_text())
     except FileNotFoundError:
         raise ParameterError(f"run file {path} does not exist") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ParameterError(f"run file {path} cannot be read: {exc}") from None
     except tomllib.TOMLDecodeError as exc:
         raise ParameterError(f"run file {path}: {exc}") from None
     _check_keys(doc, _TOP, str(path))
-    datasets = doc.get("dataset", [])
-    codecs = doc.get("codec", [])
+    datasets = _named(doc.get("dataset", []), "dataset", _DATASET, path)
+    codecs = _named(doc.get("codec", []), "codec", _CODEC, path)
     if not datasets or not codecs:
         raise ParameterError(f"{path}: needs at least one [[dataset]] and one [[codec]] table")
     sweeps: dict[str, dict[str, list]] = {}
-    for i, c in enumerate(codecs):
-        _check_keys(c, _CODEC, f"{path}: [[codec]] {i + 1}")
-        if "name" not in c:
-            raise ParameterError(f"{path}: [[codec]] {i + 1} has no name")
+    for c in codecs:
         if c["name"] in sweeps:
             raise ParameterError(f"{path}: codec {c['name']!r} appears twice; give it one params grid")
         sweeps[c["name"]] = {k: _as_list(v) for k, v in c.get("params", {}).items()}
-    seeds = [int(s) for s in _as_list(doc.get("seeds", [0]))]
-    plans = []
-    for i, d in enumerate(datasets):
-        _check_keys(d, _DATASET, f"{path}: [[dataset]] {i + 1}")
-        if "name" not in d:
-            raise ParameterError(f"{path}: [[dataset]] {i + 1} has no name")
-        for seed in seeds:
-            plans.append(
-                plan_run(
-                    registry,
-                    dataset=str(d["name"]),
-                    dataset_params=d.get("params", {}),
-                    codecs=list(sweeps),
-                    sweeps=sweeps,
-                    frames=doc.get("frames"),
-                    seed=seed,
-                    metric_params=doc.get("metric_params", {}),
-                    sequence_metrics=bool(doc.get("sequence_metrics", True)),
-                )
-            )
     store = doc.get("store")
-    return RunFile(tuple(plans), Path(store) if store else None, int(doc.get("workers", 1)))
+    return RunRequest(
+        datasets=tuple(DatasetRequest(str(d["name"]), dict(d.get("params", {}))) for d in datasets),
+        codecs=tuple(sweeps),
+        sweeps=sweeps,
+        frames=doc.get("frames"),
+        seeds=tuple(int(s) for s in _as_list(doc.get("seeds", [0]))),
+        metric_params=doc.get("metric_params", {}),
+        sequence_metrics=bool(doc.get("sequence_metrics", True)),
+        store=Path(store) if store else None,
+        workers=int(doc.get("workers", 1)),
+    )
+
+
+def load_run_file(path: str | Path, registry: Registry) -> RunFile:
+    """Every :class:`RunPlan` a run file asks for (one per dataset and seed), validated."""
+    request = read_run_file(path)
+    return RunFile(tuple(request.plans(registry)), request.store, request.workers)

@@ -2,7 +2,8 @@
 
 :meth:`Evaluator.evaluate` is the whole job of a worker: encode, decode the bytes with a
 *fresh* codec instance (so nothing but the payload -- and the sensor table the stream carries
-once -- crosses from encoder to decoder), check the decoded cloud, compute every frame metric.
+once, handed to the decoder from the dataset -- crosses from encoder to decoder), check the
+decoded cloud, compute every frame metric.
 It returns :class:`FrameResult` values and touches no store: recording is the next stage's job,
 so the same function serves the local pool, a cluster executor and the sequence stage's
 re-evaluation of a missing cloud.
@@ -24,16 +25,16 @@ from typing import Any
 import numpy as np
 
 from lwbench.codec import Codec, SelectionCodec
-from lwbench.errors import DecodeError, LwbenchError, MissingDependencyError
+from lwbench.errors import DecodeError, LwbenchError, MissingDependencyError, PayloadError
 from lwbench.frame import Frame
+from lwbench.limits import checked_cloud
 from lwbench.measure import PeakMemory, Stopwatch
 from lwbench.metric import Evaluation
 from lwbench.registry import Registry
-from lwbench.sensor import register_sensor
 
 from .plan import CodecConfig
 
-__all__ = ["FrameResult", "Evaluator", "Encoded", "checked_cloud", "encode_decode"]
+__all__ = ["FrameResult", "Evaluator", "Encoded", "decoded_cloud", "encode_decode"]
 
 
 @dataclass
@@ -89,23 +90,23 @@ def encode_decode(codec_cls: type[Codec], config: CodecConfig, encoder: Codec, f
                 payload = encoder.encode(frame)
         if not isinstance(payload, (bytes, bytearray)):
             raise LwbenchError(f"{config.name}: encode returned {type(payload).__name__}, not bytes")
-        # The receiver knows the stream's sensor: its table travels once per stream, not per frame.
-        register_sensor(frame.sensor)
-        decoder = codec_cls(**config.params)
+        # The receiver knows the stream's sensors (their tables travel once per stream, not per
+        # frame): the decoder is handed the dataset's sensor for this frame and the tables the
+        # encoder's payloads named -- what a stream header carries -- and nothing else.
+        decoder = codec_cls(**config.params).use_sensors([frame.sensor, *encoder.sensors])
         with watch.time("decode_ms"):
             decoded = decoder.decode(bytes(payload))
-    return Encoded(bytes(payload), checked_cloud(config.name, decoded), watch.ms, mem.peak_mb, device)
+    return Encoded(bytes(payload), decoded_cloud(config.name, decoded), watch.ms, mem.peak_mb, device)
 
 
-def checked_cloud(codec: str, decoded: object) -> np.ndarray:
-    """A decoder's output as float32 ``(M, 3)``, or ``DecodeError`` if it is not a finite cloud
-    (every receiver -- the runner, ``lwbench decode``, the stream's base -- checks the same way)."""
-    decoded = np.asarray(decoded)
-    if decoded.ndim != 2 or decoded.shape[1] != 3 or not np.issubdtype(decoded.dtype, np.floating):
-        raise DecodeError(f"{codec}: decode returned shape {decoded.shape}, expected (M, 3)")
-    if not np.isfinite(decoded).all():
-        raise DecodeError(f"{codec}: decode returned NaN/inf coordinates")
-    return decoded.astype(np.float32, copy=False)
+def decoded_cloud(codec: str, decoded: object) -> np.ndarray:
+    """A decoder's output as every receiver -- the runner, ``lwbench decode``, the stream's base --
+    takes it: :func:`lwbench.checked_cloud`'s checks, a breach blamed on the codec (``DecodeError``:
+    its decoder let through what it should have refused as a ``PayloadError``)."""
+    try:
+        return checked_cloud(decoded, codec)
+    except PayloadError as exc:
+        raise DecodeError(f"{codec}: decode returned what no decoder may return ({exc})") from None
 
 
 class Evaluator:

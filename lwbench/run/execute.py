@@ -31,19 +31,16 @@ from __future__ import annotations
 import contextlib
 import importlib
 import os
-import signal
-import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
-from multiprocessing import get_context
 from multiprocessing.connection import wait
 
 from lwbench.dataset import Dataset
 from lwbench.errors import LwbenchError, MissingDependencyError, WorkerError
-from lwbench.parallel import thread_env
 from lwbench.registry import Registry, registry_from_recipe
+from lwbench.sandbox import Sandbox, SandboxError, cap_memory, enter_child, how_it_died
 
 from .evaluate import Evaluator, FrameResult
 from .plan import CodecConfig, DatasetSpec
@@ -52,7 +49,6 @@ __all__ = [
     "DEFAULT_TIMEOUT_S",
     "FrameTask",
     "InProcessExecutor",
-    "LocalExecutor",
     "ProcessExecutor",
     "Worker",
     "default_memory_mb",
@@ -139,41 +135,8 @@ def default_memory_mb(workers: int) -> int:
 
 
 # -- the worker process ---------------------------------------------------------------------------
-def _status_mb(key: str) -> float:
-    try:
-        with open("/proc/self/status") as fh:
-            for line in fh:
-                if line.startswith(key + ":"):
-                    return int(line.split()[1]) / 1024
-    except OSError:
-        pass
-    return 0.0
-
-
-def _die_with_parent(parent: int) -> None:
-    """End this process when the driver ends, however it ends (SIGKILL included)."""
-    with contextlib.suppress(Exception):  # Linux only; the watchdog below covers the rest
-        import ctypes
-
-        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
-    if os.getppid() != parent:
-        os._exit(1)
-
-    def watch() -> None:
-        while True:
-            time.sleep(0.5)
-            if os.getppid() != parent:
-                os._exit(1)
-
-    threading.Thread(target=watch, name="lwbench-parent-watch", daemon=True).start()
-
-
-def _worker_main(conn, recipe, metric_params: dict, memory_mb: int, parent: int, preload: tuple[str, ...]) -> None:
-    import resource
-
-    _die_with_parent(parent)
-    with contextlib.suppress(ValueError, OSError):
-        resource.setrlimit(resource.RLIMIT_CORE, (0, 0))  # a crashing plugin is reported, not dumped
+def _worker_main(conn, parent: int, recipe, metric_params: dict, memory_mb: int, preload: tuple[str, ...]) -> None:
+    enter_child(parent)
     worker = Worker(registry_from_recipe(recipe), metric_params)
     for module in preload:  # start-up once per worker: not inside the first evaluation's timeout
         with contextlib.suppress(Exception):
@@ -183,10 +146,7 @@ def _worker_main(conn, recipe, metric_params: dict, memory_mb: int, parent: int,
                 import_open3d()
             else:
                 importlib.import_module(module)
-    if memory_mb and (data := _status_mb("VmData")):
-        ceiling = int((data + memory_mb) * 2**20)
-        with contextlib.suppress(ValueError, OSError):
-            resource.setrlimit(resource.RLIMIT_DATA, (ceiling, resource.getrlimit(resource.RLIMIT_DATA)[1]))
+    cap_memory(memory_mb)
     conn.send(("ready", os.getpid()))
     while True:
         try:
@@ -211,24 +171,11 @@ def _worker_main(conn, recipe, metric_params: dict, memory_mb: int, parent: int,
 # -- the driver's side ----------------------------------------------------------------------------
 @dataclass
 class _Slot:
-    proc: object
-    conn: object
+    box: Sandbox
     task: FrameTask | None = None
     remaining: list[CodecConfig] = field(default_factory=list)
     current: CodecConfig | None = None
     deadline: float | None = None
-
-
-def _how_it_died(code: int | None) -> str:
-    if code is not None and code < 0:
-        try:
-            name = signal.Signals(-code).name
-        except ValueError:
-            name = f"signal {-code}"
-        hint = {"SIGSEGV": " (a segmentation fault)", "SIGABRT": " (native code aborted: out of memory?)",
-                "SIGKILL": " (killed: out of memory?)"}.get(name, "")
-        return f"was killed by {name}{hint}"
-    return f"exited with status {code}"
 
 
 class ProcessExecutor:
@@ -250,66 +197,37 @@ class ProcessExecutor:
         self.threads = threads or max(1, (os.cpu_count() or 1) // self.workers)
         self.preload = tuple(preload)
         self._slots: list[_Slot] = []
-        self._ctx = get_context("spawn")
         self.started = 0  # worker processes started (replacements included)
 
     # -- workers ----------------------------------------------------------------------------
-    def _spawn(self) -> _Slot:
-        parent, child = self._ctx.Pipe()
-        proc = self._ctx.Process(
-            target=_worker_main,
-            args=(child, self.recipe, self.metric_params, self.memory_mb, os.getpid(), self.preload),
-            daemon=True, name="lwbench-worker",
-        )
-        with thread_env(self.threads):
-            proc.start()
-        child.close()
-        self.started += 1
-        return _Slot(proc, parent)
-
-    def _await_ready(self, slots: list[_Slot]) -> None:
-        deadline = time.monotonic() + _START_TIMEOUT_S
-        for slot in slots:
-            try:
-                if not slot.conn.poll(max(0.0, deadline - time.monotonic())):
-                    raise LwbenchError(f"a worker process did not start within {_START_TIMEOUT_S:g} s")
-                slot.conn.recv()
-            except (EOFError, OSError):
-                slot.proc.join(5)
-                raise LwbenchError(
-                    f"a worker process died while starting ({_how_it_died(slot.proc.exitcode)}): a plugin that "
-                    "crashes on import? `lwbench list` shows the plugins"
-                ) from None
+    def _spawn(self, n: int = 1) -> list[_Slot]:
+        """``n`` fresh workers, started together (their imports overlap), each ready."""
+        boxes = [Sandbox(_worker_main, (self.recipe, self.metric_params, self.memory_mb, self.preload),
+                         name="lwbench-worker", threads=self.threads) for _ in range(n)]
+        for box in boxes:
+            box.spawn()
+        self.started += n
+        try:
+            deadline = time.monotonic() + _START_TIMEOUT_S
+            for box in boxes:
+                box.wait_ready(max(0.0, deadline - time.monotonic()), "a worker process")
+        except SandboxError as exc:
+            for box in boxes:
+                box.stop(kill=True)
+            raise LwbenchError(f"{exc}: a plugin that crashes on import? `lwbench list` shows the plugins") from None
+        return [_Slot(box) for box in boxes]
 
     def _ensure(self, n: int) -> None:
-        new = [self._spawn() for _ in range(n - len(self._slots))]
-        self._await_ready(new)
-        self._slots += new
+        self._slots += self._spawn(n - len(self._slots))
 
     def _replace(self, slot: _Slot) -> None:
-        self._stop(slot, kill=True)
-        fresh = self._spawn()
-        self._await_ready([fresh])
-        self._slots[self._slots.index(slot)] = fresh
-
-    @staticmethod
-    def _stop(slot: _Slot, kill: bool = False) -> None:
-        if slot.proc.is_alive():
-            if kill:
-                slot.proc.kill()
-            else:
-                with contextlib.suppress(OSError, BrokenPipeError):
-                    slot.conn.send(None)
-        slot.proc.join(5)
-        if slot.proc.is_alive():
-            slot.proc.kill()
-            slot.proc.join(5)
-        slot.conn.close()
+        slot.box.stop(kill=True)
+        self._slots[self._slots.index(slot)] = self._spawn()[0]
 
     def close(self) -> None:
         """Stop every worker (killed if busy): none outlives the run."""
         for slot in self._slots:
-            self._stop(slot, kill=slot.task is not None)
+            slot.box.stop(kill=slot.task is not None)
         self._slots = []
 
     def __enter__(self) -> ProcessExecutor:
@@ -321,7 +239,7 @@ class ProcessExecutor:
     # -- tasks ------------------------------------------------------------------------------
     def _assign(self, slot: _Slot, task: FrameTask) -> None:
         slot.task, slot.remaining, slot.current, slot.deadline = task, list(task.configs), None, None
-        slot.conn.send(task)
+        slot.box.send(task)
 
     def _lost(self, slot: _Slot, why: str, queue: deque) -> list[FrameResult]:
         """The slot's worker is gone: its current evaluation fails with ``why``, the rest of its
@@ -349,13 +267,13 @@ class ProcessExecutor:
             busy = [s for s in self._slots if s.task is not None]
             now = time.monotonic()
             deadlines = [s.deadline - now for s in busy if s.deadline is not None]
-            wait([s.conn for s in busy] + [s.proc.sentinel for s in busy],
+            wait([s.box.conn for s in busy] + [s.box.sentinel for s in busy],
                  timeout=min([1.0, *deadlines]) if deadlines else 1.0)
             for slot in busy:
                 died = False
                 try:
-                    while slot.task is not None and slot.conn.poll(0):
-                        kind, *payload = slot.conn.recv()
+                    while slot.task is not None and slot.box.poll(0):
+                        kind, *payload = slot.box.recv()
                         if kind == "start":
                             slot.current = by_key[payload[0]]
                             slot.deadline = None if self.timeout_s is None else time.monotonic() + self.timeout_s
@@ -374,22 +292,9 @@ class ProcessExecutor:
                     died = True
                 if slot.task is None:
                     continue
-                if died or not slot.proc.is_alive():
-                    slot.proc.join(5)
-                    why = f"the worker process {_how_it_died(slot.proc.exitcode)} during this evaluation"
+                if died or not slot.box.alive:
+                    why = f"the worker process {how_it_died(slot.box.kill())} during this evaluation"
                     yield from self._lost(slot, why, queue)
                 elif slot.deadline is not None and time.monotonic() > slot.deadline:
                     why = f"timed out after {self.timeout_s:g} s (the worker was killed and replaced; --timeout)"
                     yield from self._lost(slot, why, queue)
-
-
-class LocalExecutor:
-    """This machine's executor: in process (``isolate=False`` and one worker), else a
-    :class:`ProcessExecutor` of ``workers`` processes."""
-
-    def __new__(cls, worker: Worker, workers: int = 1, metric_params: dict | None = None, *, isolate: bool = False,
-                timeout_s: float | None = DEFAULT_TIMEOUT_S, memory_mb: int | None = None):
-        if workers <= 1 and not isolate:
-            return InProcessExecutor(worker)
-        return ProcessExecutor(worker.registry.recipe(), metric_params, workers=workers, timeout_s=timeout_s,
-                               memory_mb=memory_mb)

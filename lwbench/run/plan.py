@@ -37,7 +37,9 @@ __all__ = [
     "RunPlan",
     "config_label",
     "expand_codec_configs",
+    "frames_for",
     "parse_assignments",
+    "parse_metric_params",
     "parse_sweeps",
     "plan_run",
     "preflight",
@@ -182,6 +184,31 @@ def parse_sweeps(
     return out
 
 
+def parse_metric_params(items: Sequence[str], registry: Registry) -> dict[str, dict[str, str]]:
+    """``--metric-param METRIC.KEY=VALUE`` words (one value each: metrics are not swept)."""
+    metrics = sorted({*registry.frame_metrics, *registry.sequence_metrics})
+    out: dict[str, dict[str, str]] = {}
+    for metric, values in parse_sweeps(items, metrics, "--metric-param", "metric").items():
+        for key, vals in values.items():
+            if len(vals) != 1:
+                raise ParameterError(f"--metric-param {metric}.{key}: one value only (metrics are not swept)")
+            out.setdefault(metric, {})[key] = vals[0]
+    return out
+
+
+def frames_for(registry: Registry, spec: DatasetSpec, frames: int | None) -> DatasetSpec:
+    """``--frames N``, one meaning everywhere: the first N frames of the dataset. A dataset that
+    generates its frames (declares a ``frames`` parameter, as the simulator) and would give fewer
+    by default is asked for N -- its first frames do not depend on how many it makes -- unless
+    the user set that parameter (``--dataset-param frames=M``) themselves."""
+    if frames is None or "frames" in spec.params:
+        return spec
+    declared = next((p for p in registry.dataset(spec.name).params if p.name == "frames"), None)
+    if declared is None or declared.type != "int" or not declared.default or frames <= declared.default:
+        return spec
+    return DatasetSpec(spec.name, {**spec.params, "frames": frames})
+
+
 def plan_run(
     registry: Registry,
     *,
@@ -195,7 +222,7 @@ def plan_run(
     sequence_metrics: bool = True,
 ) -> RunPlan:
     """Turn a request into a validated :class:`RunPlan` (every error is a clear ``LwbenchError``)."""
-    spec = resolve_dataset(registry, dataset, dataset_params or {}, seed)
+    spec = frames_for(registry, resolve_dataset(registry, dataset, dataset_params or {}, seed), frames)
     names = list(dict.fromkeys(codecs)) or [n for n, c in sorted(registry.codecs.items()) if c.in_default_run]
     if not names:
         raise PluginError("no codec named and no installed codec is in the default run: pass --codec NAME")

@@ -247,8 +247,11 @@ class GMMCodec(RepresentationCodec):
         x, _ = sample_mixture(w, mu, chol, n, gen, truncate)
         if free is not None:
             x = x[mixture_log_prob(w, mu, chol, x) >= mixture_log_prob(*free, x)]
-        pts = checked_cloud(x.numpy(), self.name)  # huge means or factors overflow float32
+        # A payload that names its sensor is held to its reach (huge means or factors would put
+        # points kilometres away, or overflow float32); one that does not, to any LiDAR's.
+        sensor = self.read_sensor(payload) if reproject or "sensor" in payload.meta else None
+        max_range = None if sensor is None else sensor.max_range
+        pts = checked_cloud(x.numpy(), self.name, max_range=max_range)
         if reproject:
-            sensor = self.read_sensor(payload)
             pts = sensor.unproject(sensor.project(pts).ranges)
-        return checked_cloud(pts, self.name)
+        return checked_cloud(pts, self.name, max_range=max_range)

@@ -24,22 +24,16 @@ def register(cli: typer.Typer) -> None:
     ) -> None:
         """PocoNet's training labels for a sequence with poses: observation counts, ground,
         Algorithm 1's dynamic threshold (high priority / low priority / ground)."""
-        from lwbench.cli import _fail
-        from lwbench.errors import LwbenchError
-        from lwbench.registry import get_registry
-        from lwbench.run import parse_assignments, resolve_dataset
+        from lwbench import open_dataset
 
         from .labels import CLASSES, LabelSettings, LabelStore, label_dataset
 
-        try:
-            reg = get_registry()
-            ds = resolve_dataset(reg, dataset, parse_assignments(dataset_param, "--dataset-param"), 0).build(reg)
-            idx = list(range(min(len(ds), frames) if frames else len(ds)))
-            settings = LabelSettings(d_th=d_th, r_th=r_th)
-            labels, counts = label_dataset(ds, idx, settings)
-            LabelStore(out).write(ds, idx, labels, counts, settings)
-        except LwbenchError as exc:
-            _fail(str(exc))
+        # An lwbench error raised here is printed by the CLI as one line, exit status 2.
+        ds = open_dataset(dataset, dataset_param)
+        idx = list(range(min(len(ds), frames) if frames else len(ds)))
+        settings = LabelSettings(d_th=d_th, r_th=r_th)
+        labels, counts = label_dataset(ds, idx, settings)
+        LabelStore(out).write(ds, idx, labels, counts, settings)
         import numpy as np
 
         share = np.bincount(np.concatenate(labels), minlength=3) / sum(len(x) for x in labels)

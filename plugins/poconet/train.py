@@ -34,8 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lwbench import Dataset, ParameterError
-from lwbench.registry import get_registry
+from lwbench import Dataset, ParameterError, open_dataset
 
 from .codec import CHECKPOINT_FORMAT
 from .data import crop, features, prepare, to_torch
@@ -71,7 +70,7 @@ class TrainConfig:
 
 
 def _sim(seed: int, frames: int) -> Dataset:
-    return get_registry().dataset("sim")(**SIM_PROTOCOL, seed=seed, frames=frames)
+    return open_dataset("sim", {**SIM_PROTOCOL, "seed": seed, "frames": frames})
 
 
 def _labelled(ds: Dataset, folder: Path) -> LabelStore:

@@ -258,7 +258,7 @@ class VSGPCodec(RepresentationCodec):
         self.last_timings = timings
         from lwbench import checked_cloud
 
-        return checked_cloud(pts, self.name)
+        return checked_cloud(pts, self.name, max_range=sensor.max_range)  # no point past its sensor's reach
 
 
 @hookimpl

@@ -1,0 +1,167 @@
+"""Reading results: ``lwbench leaderboard``, ``lwbench rd`` and ``lwbench report``."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from lwbench.errors import LwbenchError, ParameterError, StoreError
+
+from .app import app, registry
+from .options import OUTPUT, RESULTS, ColumnsOpt, FormatOpt, MinCoverage, ShownDataset, SortOpt, StoreOpt
+from .output import console, escape, print_board, wanted_columns
+from .running import BENCHMARK, board_sort
+
+
+def _store(store: Path | None) -> Path:
+    from lwbench.run.request import DEFAULT_STORE
+
+    path = store or DEFAULT_STORE
+    if not path.exists():
+        raise StoreError(f"no results store at {path} (run `lwbench run` first)")
+    return path
+
+
+def _choice(value: str, choices: tuple[str, ...], option: str) -> None:
+    if value not in choices:
+        raise ParameterError(f"{option} must be {', '.join(choices[:-1])} or {choices[-1]}, got {value!r}")
+
+
+@app.command(rich_help_panel=BENCHMARK)
+def leaderboard(
+    store: StoreOpt = None,
+    dataset: ShownDataset = None,
+    sort: SortOpt = None,
+    format: FormatOpt = "table",
+    columns: ColumnsOpt = None,
+    min_coverage: MinCoverage = None,
+) -> None:
+    """Aggregate stored rows (mean, std, median, p95 per codec configuration)."""
+    from lwbench.leaderboard import build_leaderboard, present_columns, to_csv, to_json, to_markdown
+    from lwbench.store import ResultStore
+
+    _choice(format, ("table", "md", "csv", "json"), "--format")
+    path = _store(store)
+    reg = registry()
+    info = reg.metric_info()
+    board = {} if min_coverage is None else {"min_coverage": min_coverage}
+    with ResultStore(path, readonly=True) as results:
+        entries = build_leaderboard(results, dataset=dataset, sort=sort, info=info, **board)
+    stored_ids = {m for e in entries for m in e.stats}
+    wanted = wanted_columns(columns, {**dict.fromkeys(stored_ids), **info})
+    if not entries:
+        raise LwbenchError("no results" + (f" for dataset {dataset!r}" if dataset else "") + f" in {path}")
+    if format == "json":
+        print(to_json(entries))
+    elif format == "csv":
+        print(to_csv(entries), end="")
+    elif format == "md":
+        cols = wanted or present_columns(entries, reg.default_columns())
+        print(to_markdown(entries, cols, info), end="")
+    else:
+        print_board(entries, sort or board_sort(info), wanted, info)
+
+
+@app.command(rich_help_panel=BENCHMARK)
+def rd(
+    distortion: Annotated[str, typer.Option(
+        help="Distortion metric id (range_rmsd, chamfer, d1_psnr, ate_rmse, ...).", rich_help_panel=OUTPUT)]
+    = "range_rmsd",
+    rate: Annotated[str, typer.Option(
+        help="Rate metric id: bytes (per frame) or bits_per_point.", rich_help_panel=OUTPUT)] = "bytes",
+    store: StoreOpt = None,
+    dataset: ShownDataset = None,
+    reference: Annotated[str | None, typer.Option(
+        help="Codec the BD-rate / BD-distortion are measured against.", rich_help_panel=OUTPUT)] = None,
+    at_rate: Annotated[float | None, typer.Option(
+        help="Report each curve's distortion at this rate.", rich_help_panel=OUTPUT)] = None,
+    at_distortion: Annotated[float | None, typer.Option(
+        help="Report each curve's rate at this distortion.", rich_help_panel=OUTPUT)] = None,
+    format: Annotated[str, typer.Option("--format", help="table | json", rich_help_panel=OUTPUT)] = "table",
+) -> None:
+    """Rate-distortion from the sweep points in the store: each codec's curve, the Pareto front,
+    values at equal rate / distortion (interpolated, never extrapolated) and BD-rate."""
+    from lwbench.leaderboard import build_leaderboard, check_metric_ids
+    from lwbench.rd import curves_from_entries, summarise
+    from lwbench.store import ResultStore
+
+    _choice(format, ("table", "json"), "--format")
+    reg = registry()
+    info = reg.metric_info()
+    check_metric_ids([distortion, rate], info, "lwbench rd")
+    path = _store(store)
+    with ResultStore(path, readonly=True) as results:
+        entries = build_leaderboard(results, dataset=dataset, info=info)
+    left_out: list = []
+    curves = curves_from_entries(entries, distortion, rate=rate, info=info, left_out=left_out)
+    summary = summarise(curves, unit=info[distortion].unit, at_rate=at_rate, at_distortion=at_distortion,
+                        reference=reference)
+    if not summary:
+        raise LwbenchError(f"no unflagged configuration in {path} has both {rate} and {distortion}")
+    skipped = [{"dataset": e.dataset, "label": e.label, "reason": why} for e, why in left_out]
+    if format == "json":
+        print(json.dumps({"rate": rate, "distortion": distortion, "datasets": summary, "left_out": skipped}, indent=2))
+        return
+    _print_rd(summary, info, distortion, rate, reference, at_rate, at_distortion)
+    if skipped:
+        console.print("left out: " + escape("; ".join(f"{s['label']} ({s['reason']})" for s in skipped)))
+
+
+def _print_rd(summary: dict, info, distortion: str, rate: str, reference: str | None, at_rate: float | None,
+              at_distortion: float | None) -> None:
+    from rich.table import Table
+
+    d_unit, r_unit = info[distortion].unit, info[rate].unit
+    for ds, s in summary.items():
+        table = Table(title=f"{ds}: {distortion} [{d_unit}] against {rate} [{r_unit}]", title_justify="left")
+        for col in ("codec", "points (label: rate -> distortion)", "on the front"):
+            table.add_column(col)
+        on_front = {(f["codec"], f["label"]) for f in s["front"]}
+        for codec, pts in s["curves"].items():
+            text = "; ".join(f"{p['label']}: {p['rate']:,.0f} -> {p['distortion']:.4g}" for p in pts)
+            n = sum((codec, p["label"]) in on_front for p in pts)
+            table.add_row(escape(codec), escape(text), f"{n} of {len(pts)}")
+        console.print(table)
+        for what, key, fmt in (("at_rate", at_rate, "{:.4g}"), ("at_distortion", at_distortion, "{:,.0f}")):
+            if key is None:
+                continue
+            vals = ", ".join(f"{c} {fmt.format(v) if v is not None else 'does not reach'}" for c, v in s[what].items())
+            console.print(f"{'distortion at' if what == 'at_rate' else 'rate at'} {key:g}: {escape(vals)}")
+        for codec, bd in s["bd"].items():
+            if "error" in bd:
+                console.print(f"BD vs {escape(str(reference))}: {escape(codec)}: {escape(bd['error'])}")
+            else:
+                console.print(f"BD vs {escape(str(reference))}: {escape(codec)}: BD-rate {bd['bd_rate_pct']:+.1f} %, "
+                              f"BD-distortion {bd['bd_distortion']:+.3g} dB")
+
+
+@app.command(rich_help_panel=BENCHMARK)
+def report(
+    out: Annotated[Path, typer.Option(
+        help="Folder for index.html and the plots (PNG + SVG).", rich_help_panel=OUTPUT)] = Path("lwbench-report"),
+    store: StoreOpt = None,
+    dataset: ShownDataset = None,
+    config: Annotated[Path | None, typer.Option(
+        help="Run this TOML study first (cached rows are reused), then report it.", rich_help_panel=RESULTS)] = None,
+) -> None:
+    """Write a self-contained HTML report: sortable leaderboard, RD curves, runtime, a gallery."""
+    from lwbench.report import write_report
+
+    reg = registry()
+    if config is not None:
+        from lwbench.run import Study
+        from lwbench.run.config import read_run_file
+
+        request = read_run_file(config).with_options(store=store)
+        outcome = Study.prepare(request, reg).run()
+        done = [(s.evaluated, s.skipped, s.failed) for s in outcome.summaries]
+        console.print(f"{escape(str(config))}: evaluated {sum(d[0] for d in done)}, cached {sum(d[1] for d in done)}, "
+                      f"{sum(d[2] for d in done)} failure(s) -> {escape(str(request.store_path))}")
+        if outcome.interrupted:
+            raise typer.Exit(130)
+        store = request.store_path
+    page = write_report(_store(store), out, reg, dataset=dataset)
+    console.print(f"wrote {escape(str(page))} (open it in a browser; plots as PNG and SVG beside it)")

@@ -1,0 +1,146 @@
+"""``lwbench run``: fill a :class:`~lwbench.run.RunRequest` from the options (or a run file), run
+the :class:`~lwbench.run.Study`, print the board of what it asked for."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from lwbench.errors import ParameterError
+
+from .app import app, registry
+from .options import (
+    DATA,
+    EXECUTION,
+    METRICS,
+    CodecNames,
+    ColumnsOpt,
+    DatasetOpt,
+    DatasetParams,
+    Frames,
+    MinCoverage,
+    Seed,
+    SortOpt,
+    StoreOpt,
+    Sweeps,
+    words,
+)
+from .output import console, err_console, escape, print_board, progress_bar, wanted_columns
+
+BENCHMARK = "Benchmark"
+#: lwbench.run.DEFAULT_TIMEOUT_S, written out: importing lwbench.run here would slow every command's start.
+DEFAULT_TIMEOUT_S = 3600.0
+
+
+@app.command(rich_help_panel=BENCHMARK)
+def run(
+    dataset: DatasetOpt = None,
+    dataset_param: DatasetParams = None,
+    codec: CodecNames = None,
+    param: Sweeps = None,
+    frames: Frames = None,
+    store: StoreOpt = None,
+    workers: Annotated[int, typer.Option(
+        help="Parallel worker processes (frames in parallel).", min=1, rich_help_panel=EXECUTION)] = 1,
+    seed: Seed = 0,
+    sequence_metrics: Annotated[bool, typer.Option(
+        help="Localization/occupancy metrics when poses exist.", rich_help_panel=METRICS)] = True,
+    retry_failed: Annotated[bool, typer.Option(help="Re-evaluate stored failures.", rich_help_panel=EXECUTION)] = False,
+    force: Annotated[bool, typer.Option(
+        "--force", help="Recompute every row, even those already stored.", rich_help_panel=EXECUTION)] = False,
+    metric_param: Annotated[list[str] | None, typer.Option(
+        "--metric-param", help="METRIC.KEY=VALUE, e.g. geometry.peak=59.70 (part of the key).",
+        rich_help_panel=METRICS)] = None,
+    sort: SortOpt = None,
+    columns: ColumnsOpt = None,
+    min_coverage: MinCoverage = None,
+    config: Annotated[Path | None, typer.Option(
+        help="A TOML run file: datasets x codecs x grids x seeds (see docs).", rich_help_panel=DATA)] = None,
+    isolate: Annotated[bool, typer.Option(
+        "--isolate/--in-process", rich_help_panel=EXECUTION,
+        help="Evaluate in worker processes with a timeout and a memory ceiling (default).")] = True,
+    timeout: Annotated[float, typer.Option(
+        help="Seconds one evaluation may take before its worker is killed (0: no limit).", min=0,
+        rich_help_panel=EXECUTION)] = DEFAULT_TIMEOUT_S,
+    memory_limit: Annotated[int | None, typer.Option(
+        help="MB of memory per worker (default: 80% of the machine's, shared).", min=1,
+        rich_help_panel=EXECUTION)] = None,
+    executor: Annotated[str, typer.Option(
+        help="local, or ray: evaluations as Ray tasks (lwbench\\[ray]).", rich_help_panel=EXECUTION)] = "local",
+    address: Annotated[str | None, typer.Option(
+        help="Ray cluster address (--executor ray; default: start a local Ray).", rich_help_panel=EXECUTION)] = None,
+) -> None:
+    """Evaluate codecs on a dataset; every result lands in the store; print the leaderboard."""
+    from lwbench.leaderboard import build_leaderboard, check_metric_ids
+    from lwbench.run import RunRequest, Study
+    from lwbench.run.config import read_run_file
+    from lwbench.store import ResultStore
+
+    reg = registry()
+    options = {"retry_failed": retry_failed, "force": force, "isolate": isolate, "timeout_s": timeout or None,
+               "memory_mb": memory_limit, "executor": executor, "address": address}
+    if config is not None:
+        if dataset or dataset_param or codec or param:
+            raise ParameterError("--config describes the datasets and codecs: leave out --dataset, --codec and --param")
+        request = read_run_file(config)
+        request = request.with_options(store=store, workers=max(workers, request.workers), **options)
+    else:
+        request = RunRequest.from_words(
+            reg, dataset=dataset, dataset_params=words(dataset_param), codecs=words(codec), params=words(param),
+            metric_params=words(metric_param), seed=seed, frames=frames, sequence_metrics=sequence_metrics,
+            store=store, workers=workers, **options)
+    info = reg.metric_info()
+    wanted = wanted_columns(columns, info)
+    if sort is not None:
+        check_metric_ids([sort], info, "--sort")  # before the evaluation, not after it
+    study = Study.prepare(request, reg)
+    keys: set[str] = set()
+    with ResultStore(request.store_path) as results:
+        for runner in study.runners(results):
+            n_total = len(runner.frame_indices) * len(runner.configs)
+            console.print(
+                f"[bold]lwbench run[/]: {escape(runner.plan.dataset.label)} · {len(runner.frame_indices)} frame(s) · "
+                f"{len(runner.configs)} codec configuration(s) · store {escape(str(request.store_path))}"
+            )
+            summary = _run_with_progress(runner)
+            console.print(
+                f"evaluated {summary.evaluated}, cached {summary.skipped} of {n_total}; "
+                f"{summary.failed} failure(s); {summary.sequence_rows} sequence row(s)"
+            )
+            for f in summary.failures[:10]:
+                err_console.print(f"[red]failed:[/] {escape(f)}", highlight=False)
+            if summary.interrupted:
+                err_console.print("[yellow]interrupted:[/] finished rows are stored; "
+                                  "run the same command again to resume")
+                raise typer.Exit(130)
+            keys |= runner.keys()
+        sort = sort or board_sort(info)
+        board = {} if min_coverage is None else {"min_coverage": min_coverage}
+        entries = build_leaderboard(results, sort=sort, info=info, keys=keys, **board)
+        if len(study.plans) == 1:
+            console.print(f"dataset: {escape(study.plans[0].dataset.label)}")
+        print_board(entries, sort, wanted, info)
+
+
+def board_sort(info) -> str:
+    """The metric a board is sorted by when ``--sort`` is not given."""
+    from lwbench.leaderboard import headline_metric
+
+    return headline_metric(info)
+
+
+def _run_with_progress(runner):
+    with progress_bar(eta=True) as progress:
+        tasks: dict[str, int] = {}
+
+        def on_progress(event) -> None:
+            if event.phase not in tasks:
+                title = "frames" if event.phase == "frames" else "sequence metrics"
+                tasks[event.phase] = progress.add_task(title, total=event.total)
+            row = event.row
+            what = f"{row.codec} frame {row.frame}" if row.kind == "frame" else f"{row.codec} · {row.part}"
+            progress.update(tasks[event.phase], total=event.total, completed=event.done, description=what)
+
+        return runner.run(on_progress)

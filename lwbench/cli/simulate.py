@@ -1,0 +1,41 @@
+"""``lwbench simulate``: a simulated sequence written in KITTI layout."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from .app import app, registry
+from .files import PANEL, open_source
+from .options import DATA, OUTPUT, Frames
+from .output import console, escape, progress_bar
+
+
+@app.command(rich_help_panel=PANEL)
+def simulate(
+    scene: Annotated[str, typer.Argument(help="Scene: tunnel, urban or indoor.")],
+    out: Annotated[Path, typer.Option(help="Output folder (KITTI odometry layout).", rich_help_panel=OUTPUT)],
+    frames: Frames = None,
+    seed: Annotated[int, typer.Option(help="Scene and noise seed.", rich_help_panel=DATA)] = 0,
+    sensor: Annotated[str | None, typer.Option(
+        help="Sensor preset (default: the scene's).", rich_help_panel=DATA)] = None,
+) -> None:
+    """Write a simulated sequence to disk in KITTI layout (readable by lwbench and other tools).
+
+    The simulator is the default dataset (the installed dataset that declares ``is_default``)."""
+    from lwbench.io import write_kitti_sequence
+
+    reg = registry()
+    words = [f"scene={scene}", f"seed={seed}", *([f"sensor={sensor}"] if sensor is not None else [])]
+    _, ds = open_source(reg, None, words, seed, frames)
+    n = min(len(ds), frames) if frames else len(ds)
+    with progress_bar() as progress:
+        task = progress.add_task(f"simulating {scene}", total=n)
+        scans = []
+        for i in range(n):
+            scans.append(ds[i])
+            progress.advance(task)
+    write_kitti_sequence(scans, out)
+    console.print(f"wrote {len(scans)} scans of {scene!r} to {escape(str(out))} (run: lwbench run --dataset {out})")

@@ -1,0 +1,176 @@
+"""What one run asks for, however it was asked: a :class:`RunRequest`, and the :class:`Study` it runs.
+
+Three front ends fill the same request -- the command line (``lwbench run``'s options), a TOML
+run file (:mod:`.config`) and a quality gate (:mod:`lwbench.gates`) -- so they plan, check and
+run a study the same way, and ``lwbench report --config`` calls :meth:`Study.run` instead of
+replaying the ``run`` command. A request holds *words and values*, not built objects: turning
+it into :class:`~.plan.RunPlan` s (one per dataset and seed) is :meth:`RunRequest.plans`, which
+validates everything against the installed plugins.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+from lwbench.dataset import Dataset
+from lwbench.errors import ParameterError
+from lwbench.registry import Registry
+from lwbench.store import ResultStore
+
+from .execute import DEFAULT_TIMEOUT_S
+from .plan import RunPlan, parse_assignments, parse_metric_params, parse_sweeps, plan_run, preflight
+from .runner import Progress, Runner, RunSummary
+
+__all__ = ["DEFAULT_STORE", "DatasetRequest", "RunRequest", "Study", "StudyOutcome"]
+
+#: Where results go when neither the command line nor a run file says.
+DEFAULT_STORE = Path("lwbench-results/results.sqlite")
+
+
+@dataclass(frozen=True)
+class DatasetRequest:
+    """A dataset as a user names it: a registered name, a path, or ``None`` (the default one)."""
+
+    source: str | None = None
+    params: Mapping[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class RunRequest:
+    """Datasets x codecs x parameter grids x seeds, and where and how to evaluate them."""
+
+    datasets: tuple[DatasetRequest, ...] = (DatasetRequest(),)
+    codecs: tuple[str, ...] = ()  # empty: the codecs that declare in_default_run
+    sweeps: Mapping[str, Mapping[str, Sequence[Any]]] = field(default_factory=dict)  # codec -> key -> values
+    frames: int | None = None  # the first N frames of every dataset
+    seeds: tuple[int, ...] = (0,)
+    metric_params: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    sequence_metrics: bool = True
+    # -- where and how (not part of any result's key) --
+    store: Path | None = None  # None: DEFAULT_STORE
+    workers: int = 1
+    retry_failed: bool = False
+    force: bool = False
+    isolate: bool = True
+    timeout_s: float | None = DEFAULT_TIMEOUT_S
+    memory_mb: int | None = None
+    executor: str = "local"
+    address: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.executor not in ("local", "ray"):
+            raise ParameterError(f"--executor must be local or ray, got {self.executor!r}")
+        if not self.datasets or not self.seeds:
+            raise ParameterError("a run needs at least one dataset and one seed")
+        if self.workers < 1:
+            raise ParameterError(f"--workers must be at least 1, got {self.workers}")
+
+    @classmethod
+    def from_words(
+        cls,
+        registry: Registry,
+        *,
+        dataset: str | None = None,
+        dataset_params: Sequence[str] = (),
+        codecs: Sequence[str] = (),
+        params: Sequence[str] = (),
+        metric_params: Sequence[str] = (),
+        seed: int = 0,
+        **options: Any,
+    ) -> RunRequest:
+        """A request from command-line words: ``--dataset-param KEY=VALUE``, ``--param
+        CODEC.KEY=V1,V2``, ``--metric-param METRIC.KEY=VALUE`` (each checked as it is parsed)."""
+        names = tuple(dict.fromkeys(codecs))
+        owners = names or tuple(sorted(n for n, c in registry.codecs.items() if c.in_default_run))
+        return cls(
+            datasets=(DatasetRequest(dataset, parse_assignments(dataset_params, "--dataset-param")),),
+            codecs=names,
+            sweeps=parse_sweeps(params, owners, "--param"),
+            seeds=(seed,),
+            metric_params=parse_metric_params(metric_params, registry),
+            **options,
+        )
+
+    def with_options(self, **options: Any) -> RunRequest:
+        """The same study with other execution options (``--store`` on the command line wins
+        over a run file's ``store``)."""
+        return replace(self, **{k: v for k, v in options.items() if v is not None})
+
+    @property
+    def store_path(self) -> Path:
+        return self.store if self.store is not None else DEFAULT_STORE
+
+    def plans(self, registry: Registry) -> list[RunPlan]:
+        """One validated :class:`RunPlan` per dataset and seed (every error a clear ``LwbenchError``)."""
+        return [
+            plan_run(
+                registry,
+                dataset=d.source,
+                dataset_params=d.params,
+                codecs=self.codecs,
+                sweeps=self.sweeps,
+                frames=self.frames,
+                seed=seed,
+                metric_params=self.metric_params,
+                sequence_metrics=self.sequence_metrics,
+            )
+            for d in self.datasets
+            for seed in self.seeds
+        ]
+
+
+@dataclass
+class StudyOutcome:
+    """What a study did: one summary per plan, and the keys of every row it asked for."""
+
+    summaries: list[RunSummary] = field(default_factory=list)
+    keys: set[str] = field(default_factory=set)
+
+    @property
+    def interrupted(self) -> bool:
+        return any(s.interrupted for s in self.summaries)
+
+
+@dataclass
+class Study:
+    """A request planned and checked: built by :meth:`prepare` before anything is written."""
+
+    request: RunRequest
+    registry: Registry
+    plans: list[RunPlan]
+    datasets: list[Dataset]
+
+    @classmethod
+    def prepare(cls, request: RunRequest, registry: Registry) -> Study:
+        """Plan the request and check everything that can be checked before the store is opened
+        (a bad dataset, scan, sensor file or device is an error now, with nothing written)."""
+        plans = request.plans(registry)
+        return cls(request, registry, plans, [preflight(registry, plan) for plan in plans])
+
+    def runners(self, results: ResultStore) -> Iterator[Runner]:
+        """One :class:`Runner` per plan, writing into ``results`` (the caller runs each)."""
+        r = self.request
+        for plan, dataset in zip(self.plans, self.datasets, strict=True):
+            yield Runner(results, plan, registry=self.registry, workers=r.workers, retry_failed=r.retry_failed,
+                         force=r.force, isolate=r.isolate, timeout_s=r.timeout_s, memory_mb=r.memory_mb,
+                         executor=r.executor, address=r.address, dataset=dataset)
+
+    def run(self, results: ResultStore | None = None,
+            on_progress: Callable[[Runner, Progress], None] | None = None) -> StudyOutcome:
+        """Every plan into ``results`` (default: the request's store, opened here); stops after a
+        plan that was interrupted (its finished rows are stored; the same study resumes)."""
+        if results is None:
+            with ResultStore(self.request.store_path) as opened:
+                return self.run(opened, on_progress)
+        outcome = StudyOutcome()
+        for runner in self.runners(results):
+            report = None if on_progress is None else (lambda event, _r=runner: on_progress(_r, event))
+            summary = runner.run(report)
+            outcome.summaries.append(summary)
+            outcome.keys |= runner.keys()
+            if summary.interrupted:
+                break
+        return outcome

@@ -1,0 +1,96 @@
+"""The plugin boundary, held by the code itself: who may import whom (tools/import_graph.py).
+
+- core (``lwbench``) never imports a plugin or a built-in metric module;
+- every plugin folder (``plugins/<name>``, ``metrics``) imports from lwbench only the public API
+  (``lwbench``, ``lwbench.geometry``, ``lwbench.testing``) -- the same boundary a third-party
+  plugin has;
+- production code never uses the test kit or another module's private helpers;
+- no import circle inside lwbench (lazy imports inside functions count too).
+"""
+
+from __future__ import annotations
+
+import ast
+import importlib.util
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+_spec = importlib.util.spec_from_file_location("import_graph", ROOT / "tools" / "import_graph.py")
+graph_tool = sys.modules.setdefault("import_graph", importlib.util.module_from_spec(_spec))
+_spec.loader.exec_module(graph_tool)
+
+MODULES = graph_tool.modules()
+GRAPH = graph_tool.edges(MODULES)
+
+def test_core_never_imports_a_plugin_and_plugins_import_only_the_public_api():
+    assert graph_tool.breaches(MODULES) == []
+
+
+def test_there_is_no_import_circle_inside_lwbench():
+    assert graph_tool.circles(GRAPH) == []
+
+
+def test_the_public_modules_exist_and_the_rules_see_every_plugin_folder():
+    for name in graph_tool.PUBLIC:
+        assert name in MODULES, name
+    plugin_folders = {p.name for p in (ROOT / "plugins").iterdir() if (p / "__init__.py").is_file()}
+    seen = {m.split(".")[1] for m in MODULES if m.startswith("lwbench_plugins.") and m.count(".") >= 1}
+    assert plugin_folders <= seen
+
+
+def _imported_names(path: Path) -> set[tuple[str, str]]:
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom) and node.module:
+            out |= {(node.module, a.name) for a in node.names}
+    return out
+
+
+def _private(module: str, name: str) -> bool:
+    return (module == "lwbench" or module.startswith("lwbench.")) and name.startswith("_") and not name.startswith("__")
+
+
+def test_production_code_uses_no_test_kit_and_no_private_helper_of_another_module():
+    offenders = []
+    for mod in MODULES.values():
+        if mod.name.startswith("lwbench.testing"):
+            continue
+        for module, name in _imported_names(mod.path):
+            if module.startswith("lwbench.testing") or (_private(module, name) and module != mod.name):
+                offenders.append(f"{mod.path.relative_to(ROOT)}: from {module} import {name}")
+    assert offenders == []
+
+
+def test_no_metric_id_is_written_into_the_board_the_report_or_the_gates():
+    """What an id means to the board -- sort direction, default column, headline, what the report
+    plots, the quality guard -- is declared by its metric (lwbench.MetricId), so a third-party
+    metric is treated as a built-in one: these modules hold no metric id as a string."""
+    from lwbench.registry import get_registry
+
+    ids = set(get_registry().metric_info())
+    for name in ("lwbench.leaderboard", "lwbench.report", "lwbench.pytest_plugin", "lwbench.gates"):
+        tree = ast.parse(MODULES[name].path.read_text())
+        docstrings = {id(n.body[0].value) for n in ast.walk(tree)
+                      if isinstance(n, (ast.Module, ast.FunctionDef, ast.ClassDef)) and n.body
+                      and isinstance(n.body[0], ast.Expr) and isinstance(n.body[0].value, ast.Constant)}
+        strings = {n.value for n in ast.walk(tree)
+                   if isinstance(n, ast.Constant) and isinstance(n.value, str) and id(n) not in docstrings}
+        assert not strings & ids, f"{name} names metric ids {sorted(strings & ids)}"
+
+
+def test_the_public_api_is_written_down_once_and_agrees_with_the_code():
+    """docs/plugins.md's "The public API" lists exactly what lwbench, lwbench.geometry and
+    lwbench.testing export (their __all__)."""
+    import re
+
+    import lwbench
+    import lwbench.geometry
+    import lwbench.testing
+
+    text = (ROOT / "docs" / "plugins.md").read_text()
+    section = text[text.index("## The public API"):]
+    parts = re.split(r"\*\*`(lwbench(?:\.\w+)?)`\*\*", section)
+    listed = {parts[i]: set(re.findall(r"`([A-Za-z_][A-Za-z0-9_]*)`", parts[i + 1])) for i in range(1, len(parts), 2)}
+    for module in (lwbench, lwbench.geometry, lwbench.testing):
+        assert listed[module.__name__] == set(module.__all__), module.__name__
