@@ -56,6 +56,7 @@ def worst_payloads() -> list[tuple[str, bytes]]:
 
     rng = np.random.default_rng(0)
     out = []
+
     def body_of(sensor, tiling: Tiling, per_tile: int) -> Body:
         tiles = []
         for t in range(tiling.n_tiles):
@@ -67,8 +68,14 @@ def worst_payloads() -> list[tuple[str, bytes]]:
             tiles.append(TileModel(az, beam, rng.uniform(-1, 1, per_tile), (2e-5, 2e-5, 0.7, 1.0, 1e-4), 5.0))
         return Body("linear", 100.0, tiling, np.full(sensor.n_beams, 128, np.uint8), tiles)
 
-    for preset, bands, sectors in (("vlp16", 1, 1), ("vlp16", 1, 225), ("hdl64e", 4, 64), ("hdl64e", 4, 16),
-                                   ("os1-128", 8, 32), ("os1-128", 8, 4)):
+    for preset, bands, sectors in (
+        ("vlp16", 1, 1),
+        ("vlp16", 1, 225),
+        ("hdl64e", 4, 64),
+        ("hdl64e", 4, 16),
+        ("os1-128", 8, 32),
+        ("os1-128", 8, 4),
+    ):
         sensor = get_sensor(preset)
         tiling = Tiling(sensor.n_beams, sensor.n_azimuth, bands, sectors)
         per_tile = min(MAX_TILE_INDUCING, MAX_INDUCING // tiling.n_tiles)
@@ -97,8 +104,10 @@ def main() -> None:
         with DecodeServer() as server:
             for label, data in worst_payloads():
                 o = server.decode(class_ref(Checked), {}, data, warm_with=worst_payloads()[0][1])
-                print(f"- {label} ({len(data):,} bytes): {o.kind} {o.message[:100]}; {o.cpu_s:.2f} s CPU, "
-                      f"{o.peak_mb:.0f} MB")
+                print(
+                    f"- {label} ({len(data):,} bytes): {o.kind} {o.message[:100]}; {o.cpu_s:.2f} s CPU, "
+                    f"{o.peak_mb:.0f} MB"
+                )
         return
     with DecodeServer() as server:
         r = fuzz_codec(Checked, {"num_inducing": 100}, cases=args.cases, seed=args.seed, server=server)

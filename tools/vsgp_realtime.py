@@ -89,23 +89,36 @@ def measure(frames: list[Frame], params: dict, repeats: int = 1, old: bool = Fal
     o = np.array(rows)
     ref = float(np.median(refs))
     keys = [k for k in stages[0] if k in _STAGES]
-    return {"stages": {k: float(np.median([st.get(k, np.nan) for st in stages])) for k in keys},
-            "ref": ref, "enc": float(np.median(enc)), "dec": float(np.median(dec)), "bytes": o[:, 0].mean(),
-            "ratio": o[:, 1].mean(), "rmsd": float(np.nanmean(o[:, 2])), "rmsd_std": float(np.nanstd(o[:, 2])),
-            "coverage": o[:, 3].mean(), "false": o[:, 4].mean(), "worst_cov": o[:, 3].min()}
+    return {
+        "stages": {k: float(np.median([st.get(k, np.nan) for st in stages])) for k in keys},
+        "ref": ref,
+        "enc": float(np.median(enc)),
+        "dec": float(np.median(dec)),
+        "bytes": o[:, 0].mean(),
+        "ratio": o[:, 1].mean(),
+        "rmsd": float(np.nanmean(o[:, 2])),
+        "rmsd_std": float(np.nanstd(o[:, 2])),
+        "coverage": o[:, 3].mean(),
+        "false": o[:, 4].mean(),
+        "worst_cov": o[:, 3].min(),
+    }
 
 
 _STAGES = ("projection", "layout", "refine", "fit", "serialize", "parse", "predict", "sampling")
 
 
 def _row(label: str, r: dict[str, float]) -> str:
-    return (f"| {label} | {1000 * r['enc']:.1f} | {r['enc'] / r['ref']:.3f} | {1000 * r['dec']:.1f} | "
-            f"{r['dec'] / r['ref']:.3f} | {1000 * r['ref']:.0f} | {r['bytes']:,.0f} | {r['ratio']:.1f} | "
-            f"{100 * r['rmsd']:.2f} ± {100 * r['rmsd_std']:.2f} | {r['coverage']:.4f} | {r['false']:.4f} |")
+    return (
+        f"| {label} | {1000 * r['enc']:.1f} | {r['enc'] / r['ref']:.3f} | {1000 * r['dec']:.1f} | "
+        f"{r['dec'] / r['ref']:.3f} | {1000 * r['ref']:.0f} | {r['bytes']:,.0f} | {r['ratio']:.1f} | "
+        f"{100 * r['rmsd']:.2f} ± {100 * r['rmsd_std']:.2f} | {r['coverage']:.4f} | {r['false']:.4f} |"
+    )
 
 
-_HEAD = ("| setting | encode ms | × ref | decode ms | × ref | ref ms | bytes | ratio | range RMSD cm | coverage "
-         "| false returns |\n|---|---|---|---|---|---|---|---|---|---|---|")
+_HEAD = (
+    "| setting | encode ms | × ref | decode ms | × ref | ref ms | bytes | ratio | range RMSD cm | coverage "
+    "| false returns |\n|---|---|---|---|---|---|---|---|---|---|---|"
+)
 
 
 def cmd_speed(args: argparse.Namespace) -> None:
@@ -143,7 +156,7 @@ def _rangeimage_points(frames: list[Frame], params: dict) -> list[tuple[int, flo
     for fr in frames:
         codec = cls(**params)
         data = codec.encode(fr)
-        out.append((len(data), *scores(fr, cls(**params).decode(data))))
+        out.append((len(data), *scores(fr, cls(**params).use_sensors([fr.sensor]).decode(data))))
     return out
 
 
@@ -168,14 +181,20 @@ def cmd_rd(args: argparse.Namespace) -> None:
                 rows.append((len(data), *scores(fr, codec.decode(data))))
             o = np.array(rows)
             ratio = np.mean([f.raw_bytes for f in frames]) / o[:, 0].mean()
-            print(f"| vsgp | {p} | {o[:, 0].mean():,.0f} | {ratio:.1f} | {100 * np.nanmean(o[:, 1]):.2f} | "
-                  f"{o[:, 2].mean():.3f} | {o[:, 3].mean():.3f} |", flush=True)
+            print(
+                f"| vsgp | {p} | {o[:, 0].mean():,.0f} | {ratio:.1f} | {100 * np.nanmean(o[:, 1]):.2f} | "
+                f"{o[:, 2].mean():.3f} | {o[:, 3].mean():.3f} |",
+                flush=True,
+            )
     for spec in args.rangeimage:
         for p in _sweep(spec):
             o = np.array(_rangeimage_points(frames, p))
             ratio = np.mean([f.raw_bytes for f in frames]) / o[:, 0].mean()
-            print(f"| rangeimage | {p} | {o[:, 0].mean():,.0f} | {ratio:.1f} | {100 * np.nanmean(o[:, 1]):.2f} | "
-                  f"{o[:, 2].mean():.3f} | {o[:, 3].mean():.3f} |", flush=True)
+            print(
+                f"| rangeimage | {p} | {o[:, 0].mean():,.0f} | {ratio:.1f} | {100 * np.nanmean(o[:, 1]):.2f} | "
+                f"{o[:, 2].mean():.3f} | {o[:, 3].mean():.3f} |",
+                flush=True,
+            )
 
 
 def cmd_threshold(args: argparse.Namespace) -> None:
@@ -186,10 +205,13 @@ def cmd_threshold(args: argparse.Namespace) -> None:
     print("|---|---|---|---|---|")
     payloads = [VSGPCodec(**{"device": "cpu", **args.param}).encode(fr) for fr in frames]
     for v in args.v_floor:
-        codec = VSGPCodec(device="cpu", v_floor=v)
+        codec = VSGPCodec(device="cpu", v_floor=v).use_sensors([fr.sensor for fr in frames])
         o = np.array([scores(fr, codec.decode(data)) for fr, data in zip(frames, payloads, strict=True)])
-        print(f"| {v:g} | {100 * np.nanmean(o[:, 0]):.2f} | {o[:, 1].mean():.4f} | {o[:, 1].min():.4f} | "
-              f"{o[:, 2].mean():.4f} |", flush=True)
+        print(
+            f"| {v:g} | {100 * np.nanmean(o[:, 0]):.2f} | {o[:, 1].mean():.4f} | {o[:, 1].min():.4f} | "
+            f"{o[:, 2].mean():.4f} |",
+            flush=True,
+        )
 
 
 def cmd_warm(args: argparse.Namespace) -> None:
@@ -210,11 +232,14 @@ def cmd_warm(args: argparse.Namespace) -> None:
             data = codec.encode(fr)
             enc.append(time.perf_counter() - t)
             steps.append(codec.last_timings.get("steps_run", 0.0))
-            rows.append(scores(fr, VSGPCodec(**{"device": "cpu", **args.param}).decode(data)))
+            rows.append(scores(fr, VSGPCodec(**{"device": "cpu", **args.param}).use_sensors([fr.sensor]).decode(data)))
         o = np.array(rows)
         ref = float(np.median(refs))
-        print(f"| {'warm' if warm else 'cold'} | {np.mean(steps):.1f} | {1000 * np.median(enc):.1f} | "
-              f"{np.median(enc) / ref:.3f} | {100 * np.nanmean(o[:, 0]):.2f} | {o[:, 1].mean():.4f} |", flush=True)
+        print(
+            f"| {'warm' if warm else 'cold'} | {np.mean(steps):.1f} | {1000 * np.median(enc):.1f} | "
+            f"{np.median(enc) / ref:.3f} | {100 * np.nanmean(o[:, 0]):.2f} | {o[:, 1].mean():.4f} |",
+            flush=True,
+        )
 
 
 def main() -> None:
@@ -224,16 +249,22 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=10)
     ap.add_argument("--repeats", type=int, default=1, help="speed: best of this many calls per frame")
     ap.add_argument("--param", action="append", default=[], metavar="KEY=VALUE")
-    ap.add_argument("--setting", action="append", default=[], metavar="K=V,K=V",
-                    help="speed: one row per setting (repeatable); 'old:K=V' measures package vsgp_old's codec")
+    ap.add_argument(
+        "--setting",
+        action="append",
+        default=[],
+        metavar="K=V,K=V",
+        help="speed: one row per setting (repeatable); 'old:K=V' measures package vsgp_old's codec",
+    )
     ap.add_argument("--m", type=int, nargs="+", default=[200, 300, 400, 500, 600])
     ap.add_argument("--vsgp", action="append", default=[], metavar="KEY=V1,V2")
     ap.add_argument("--rangeimage", action="append", default=[], metavar="KEY=V1,V2")
     ap.add_argument("--v-floor", type=float, nargs="+", default=[0.01, 0.03, 0.1, 0.2, 0.3])
     args = ap.parse_args()
     args.param = parse_params(args.param)
-    {"speed": cmd_speed, "table": cmd_table, "rd": cmd_rd, "warm": cmd_warm, "threshold": cmd_threshold}[
-        args.command](args)
+    {"speed": cmd_speed, "table": cmd_table, "rd": cmd_rd, "warm": cmd_warm, "threshold": cmd_threshold}[args.command](
+        args
+    )
 
 
 if __name__ == "__main__":

@@ -80,46 +80,129 @@ class VSGPCodec(RepresentationCodec):
     description = "variational sparse GP of the occupancy surface (local RQ-ARD GPs, collapsed Titsias bound)"
     supports_gpu = True
     params = (
-        Param("num_inducing", "int", None, "inducing points M in all, 3 numbers each in the payload (default: "
-              "one per cells_per_point occupied cells of the scan)", low=1, high=MAX_INDUCING),
-        Param("cells_per_point", "float", 100.0, "occupied cells per inducing point when num_inducing is not given "
-              "(100: the paper's M = 500 for VLP-16 tunnel scans of up to ~50,000 returns)", low=1.0, high=1e6),
-        Param("bytes", "int", None, "payload byte budget: M is the largest that fits (overrides num_inducing)",
-              low=64, high=1 << 20),
-        Param("tile_points", "int", 128, "inducing points per local GP (azimuth sector of a band of <= 16 "
-              "beams); 0: one GP over the whole scan, as in the paper", low=0, high=MAX_TILE_INDUCING // 2),
-        Param("mode", "str", "fast", "fast (the defaults) or paper: one GP, every occupied cell, zero mean, "
-              "f = r_oc - r, learned hyper-parameters", choices=("fast", "paper")),
-        Param("transform", "str", "linear", "occupancy: linear (f = r_oc - r, the paper's) or inverse (f = 1/r)",
-              choices=TRANSFORMS),
-        Param("center", "bool", True, "each tile's prior mean is its mean occupancy (false: the paper's zero "
-              "mean, which pulls gaps between inducing points to r_oc)"),
+        Param(
+            "num_inducing",
+            "int",
+            None,
+            "inducing points M in all, 3 numbers each in the payload (default: "
+            "one per cells_per_point occupied cells of the scan)",
+            low=1,
+            high=MAX_INDUCING,
+        ),
+        Param(
+            "cells_per_point",
+            "float",
+            100.0,
+            "occupied cells per inducing point when num_inducing is not given "
+            "(100: the paper's M = 500 for VLP-16 tunnel scans of up to ~50,000 returns)",
+            low=1.0,
+            high=1e6,
+        ),
+        Param(
+            "bytes",
+            "int",
+            None,
+            "payload byte budget: M is the largest that fits (overrides num_inducing)",
+            low=64,
+            high=1 << 20,
+        ),
+        Param(
+            "tile_points",
+            "int",
+            128,
+            "inducing points per local GP (azimuth sector of a band of <= 16 "
+            "beams); 0: one GP over the whole scan, as in the paper",
+            low=0,
+            high=MAX_TILE_INDUCING // 2,
+        ),
+        Param(
+            "mode",
+            "str",
+            "fast",
+            "fast (the defaults) or paper: one GP, every occupied cell, zero mean, "
+            "f = r_oc - r, learned hyper-parameters",
+            choices=("fast", "paper"),
+        ),
+        Param(
+            "transform",
+            "str",
+            "linear",
+            "occupancy: linear (f = r_oc - r, the paper's) or inverse (f = 1/r)",
+            choices=TRANSFORMS,
+        ),
+        Param(
+            "center",
+            "bool",
+            True,
+            "each tile's prior mean is its mean occupancy (false: the paper's zero "
+            "mean, which pulls gaps between inducing points to r_oc)",
+        ),
         Param("r_oc", "float", None, "occupancy radius in m (default: the sensor's max range)", low=0.01),
-        Param("steps", "int", 0, "max Adam steps on the collapsed bound (0: sensor-derived hyper-parameters)",
-              low=0, high=1000),
+        Param(
+            "steps",
+            "int",
+            0,
+            "max Adam steps on the collapsed bound (0: sensor-derived hyper-parameters)",
+            low=0,
+            high=1000,
+        ),
         Param("lr", "float", 0.1, "Adam learning rate (on the GPyTorch raw parameters)", low=1e-5, high=10.0),
         Param("tol", "float", 1e-3, "stop when a step improves the bound by less (nats per point)", low=0.0),
         Param("subsample", "int", 2048, "occupied cells of a tile used by the hyper-parameter steps", low=16),
-        Param("fit_stride", "int", 0, "q(u) is fitted on every n-th column (0: auto, ~12 columns per azimuth "
-              "lengthscale)", low=0),
-        Param("adapt", "float", 0.7, "inducing layout: share of points placed by range variation along "
-              "a beam (0: evenly, as in the paper)", low=0.0, high=1.0),
+        Param(
+            "fit_stride",
+            "int",
+            0,
+            "q(u) is fitted on every n-th column (0: auto, ~12 columns per azimuth lengthscale)",
+            low=0,
+        ),
+        Param(
+            "adapt",
+            "float",
+            0.7,
+            "inducing layout: share of points placed by range variation along a beam (0: evenly, as in the paper)",
+            low=0.0,
+            high=1.0,
+        ),
         Param("learn_inducing", "bool", False, "also move the inducing inputs (along their beams) by gradient steps"),
-        Param("warm_start", "bool", False, "start each frame's refinement from the previous frame's "
-              "hyper-parameters (a stream encoded in order; needs steps > 0)"),
+        Param(
+            "warm_start",
+            "bool",
+            False,
+            "start each frame's refinement from the previous frame's "
+            "hyper-parameters (a stream encoded in order; needs steps > 0)",
+        ),
         Param("body", "str", "float32", "payload body format", choices=BODY_FORMATS),
-        Param("k_m", "float", 0.1, "variance threshold: weight of the grid's mean variance",
-              low=-100.0, high=100.0),
-        Param("k_std", "float", 0.0, "variance threshold: weight of the grid's variance std", low=-100.0,
-              high=100.0),
-        Param("v_floor", "float", 0.1, "variance threshold floor, as a share of the prior variance: cells "
-              "below it are always kept (0: the paper's rule alone)", low=0.0, high=1.0),
+        Param("k_m", "float", 0.1, "variance threshold: weight of the grid's mean variance", low=-100.0, high=100.0),
+        Param("k_std", "float", 0.0, "variance threshold: weight of the grid's variance std", low=-100.0, high=100.0),
+        Param(
+            "v_floor",
+            "float",
+            0.1,
+            "variance threshold floor, as a share of the prior variance: cells "
+            "below it are always kept (0: the paper's rule alone)",
+            low=0.0,
+            high=1.0,
+        ),
         Param("upsample", "int", 1, "decode onto a grid this many times finer per axis", low=1, high=8),
-        Param("stride", "int", 0, "decode: exact prediction every n-th column, interpolated between "
-              "(0: auto from the azimuth lengthscale, widened if the payload's work needs it)", low=0),
+        Param(
+            "stride",
+            "int",
+            0,
+            "decode: exact prediction every n-th column, interpolated between "
+            "(0: auto from the azimuth lengthscale, widened if the payload's work needs it)",
+            low=0,
+        ),
         Param("seed", "int", 0, "seed of the hyper-parameter subsample", low=0),
-        Param("threads", "int", 1, "torch threads inside encode/decode (0: torch's setting): a tile's algebra is "
-              "small matrices, where a second thread mostly waits for a core", low=0, high=256),
+        Param(
+            "threads",
+            "int",
+            1,
+            "torch threads inside encode/decode (0: torch's setting): a tile's algebra is "
+            "small matrices, where a second thread mostly waits for a core",
+            low=0,
+            high=256,
+        ),
         DEVICE_PARAM,
     )
 
@@ -140,22 +223,35 @@ class VSGPCodec(RepresentationCodec):
         from .encoder import FitConfig
 
         c = self.config
-        cfg = FitConfig(num_inducing=c["num_inducing"], cells_per_point=c["cells_per_point"],
-                        tile_points=c["tile_points"], adapt=c["adapt"],
-                        transform=c["transform"], center=c["center"], r_oc=c["r_oc"], steps=c["steps"], lr=c["lr"],
-                        tol=c["tol"], subsample=c["subsample"], fit_stride=c["fit_stride"],
-                        learn_inducing=c["learn_inducing"], seed=c["seed"])
+        cfg = FitConfig(
+            num_inducing=c["num_inducing"],
+            cells_per_point=c["cells_per_point"],
+            tile_points=c["tile_points"],
+            adapt=c["adapt"],
+            transform=c["transform"],
+            center=c["center"],
+            r_oc=c["r_oc"],
+            steps=c["steps"],
+            lr=c["lr"],
+            tol=c["tol"],
+            subsample=c["subsample"],
+            fit_stride=c["fit_stride"],
+            learn_inducing=c["learn_inducing"],
+            seed=c["seed"],
+        )
         if c["mode"] == "paper":
-            cfg = replace(cfg, tile_points=0, fit_stride=1, center=False, transform="linear",
-                          steps=c["steps"] or PAPER_STEPS)
+            cfg = replace(
+                cfg, tile_points=0, fit_stride=1, center=False, transform="linear", steps=c["steps"] or PAPER_STEPS
+            )
         return cfg
 
     def decode_config(self) -> DecodeConfig:
         from .decoder import DecodeConfig
 
         c = self.config
-        return DecodeConfig(upsample=c["upsample"], k_m=c["k_m"], k_std=c["k_std"], v_floor=c["v_floor"],
-                            stride=c["stride"])
+        return DecodeConfig(
+            upsample=c["upsample"], k_m=c["k_m"], k_std=c["k_std"], v_floor=c["v_floor"], stride=c["stride"]
+        )
 
     # -- encode ------------------------------------------------------------------------------
     def _fit(self, frame: Frame, cfg: FitConfig) -> tuple[FitResult, bytes]:
@@ -190,8 +286,10 @@ class VSGPCodec(RepresentationCodec):
                 break
             m = new
         if m < 1:
-            raise ParameterError(f"vsgp: bytes={budget} is below the payload's fixed size "
-                                 f"({self._overhead(frame) + fixed} bytes for this sensor)")
+            raise ParameterError(
+                f"vsgp: bytes={budget} is below the payload's fixed size "
+                f"({self._overhead(frame) + fixed} bytes for this sensor)"
+            )
         return min(m, MAX_INDUCING)
 
     def _encode_to_budget(self, frame: Frame, cfg: FitConfig) -> tuple[FitResult, bytes]:
@@ -209,8 +307,9 @@ class VSGPCodec(RepresentationCodec):
             per_point = max(per_point, (len(data) - self._overhead(frame)) / max(1, got)) * 1.02
             m = max(1, min(m - 1, self._budget_m(frame, cfg, budget, per_point)))
         if len(data) > budget:
-            raise ParameterError(f"vsgp: bytes={budget} is below what this scan's smallest payload takes "
-                                 f"({len(data)} bytes)")
+            raise ParameterError(
+                f"vsgp: bytes={budget} is below what this scan's smallest payload takes ({len(data)} bytes)"
+            )
         return res, data
 
     def encode(self, frame: Frame) -> bytes:
@@ -225,14 +324,20 @@ class VSGPCodec(RepresentationCodec):
         try:  # the decoder's own bound, with its default settings: never write what it refuses
             decodable(res.body, frame.sensor, DecodeConfig())
         except PayloadError as exc:
-            raise ParameterError(f"vsgp: this scan's payload could not be decoded ({exc}); use fewer "
-                                 "inducing points per tile (tile_points)") from None
+            raise ParameterError(
+                f"vsgp: this scan's payload could not be decoded ({exc}); use fewer "
+                "inducing points per tile (tile_points)"
+            ) from None
         if self.config["warm_start"]:
             from .gp import Hyper
 
             self._warm = [Hyper(*t.hyper) for t in res.body.tiles]
-        self.last_timings = {**res.timings, "steps_run": float(res.steps_run),
-                             "num_inducing": float(res.body.num_inducing), "tiles": float(len(res.body.tiles))}
+        self.last_timings = {
+            **res.timings,
+            "steps_run": float(res.steps_run),
+            "num_inducing": float(res.body.num_inducing),
+            "tiles": float(len(res.body.tiles)),
+        }
         return data
 
     # -- decode ------------------------------------------------------------------------------

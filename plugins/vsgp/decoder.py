@@ -36,8 +36,19 @@ from .grid import Tiling, blend_weights, blend_width, phases_of
 from .tiles import gather_points, tile_members
 from .wire import Body
 
-__all__ = ["DecodeConfig", "DecodePlan", "plan_decode", "auto_stride", "variance_mask", "reconstruct",
-           "query_rows", "FLOPS_PER_UNIT", "WORK_BUDGET", "fits_exactly", "decodable"]
+__all__ = [
+    "DecodeConfig",
+    "DecodePlan",
+    "plan_decode",
+    "auto_stride",
+    "variance_mask",
+    "reconstruct",
+    "query_rows",
+    "FLOPS_PER_UNIT",
+    "WORK_BUDGET",
+    "fits_exactly",
+    "decodable",
+]
 
 #: Multiply-adds of a triangular solve or factorization that cost as much as one kernel entry
 #: (an RQ transform with a log and an exp, the work unit of ``lwbench.MAX_WORK``): measured here
@@ -165,13 +176,17 @@ def plan_decode(body: Body, sensor: SensorModel, cfg: DecodeConfig) -> DecodePla
         return total
 
     factor = 1
-    while work(factor) > WORK_BUDGET and cfg.stride == 0 and any(s * factor < len(c) for (_, c, _, _), s in
-                                                                 zip(layouts, base, strict=True)):
+    while (
+        work(factor) > WORK_BUDGET
+        and cfg.stride == 0
+        and any(s * factor < len(c) for (_, c, _, _), s in zip(layouts, base, strict=True))
+    ):
         factor *= 2
     total = work(factor)
     if total > WORK_BUDGET:
-        raise PayloadError(f"vsgp payload: the decode grid's kernel would take {total:,} evaluations, "
-                           f"more than {WORK_BUDGET:,}")
+        raise PayloadError(
+            f"vsgp payload: the decode grid's kernel would take {total:,} evaluations, more than {WORK_BUDGET:,}"
+        )
     plans, strides = [], []
     for t, ((rows, cols, _, _), s) in enumerate(zip(layouts, base, strict=True)):
         stride = min(max(1, len(cols)), s * factor)
@@ -195,8 +210,15 @@ def _interpolate(values: np.ndarray, eval_idx: np.ndarray, n: int, cubic: bool) 
     return values[:, j] * (1 - frac) + values[:, j + 1] * frac
 
 
-def _predict_tile(tile_z: torch.Tensor, tile_u: torch.Tensor, h: Hyper, u_noise: float, az: torch.Tensor,
-                  el: torch.Tensor, var_sub: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
+def _predict_tile(
+    tile_z: torch.Tensor,
+    tile_u: torch.Tensor,
+    h: Hyper,
+    u_noise: float,
+    az: torch.Tensor,
+    el: torch.Tensor,
+    var_sub: torch.Tensor,
+) -> tuple[np.ndarray, np.ndarray]:
     """Mean on every column of ``az``, variance on the columns ``var_sub`` of it."""
     pred = Predictor(tile_z, tile_u, h, u_noise)
     tables = KernelTables(az, el, pred.z, h)
@@ -217,8 +239,9 @@ def variance_mask(var: np.ndarray, k_m: float, k_std: float, floor: float = 0.0)
     return var <= max(k_m * var.mean() + k_std * var.std(), floor)
 
 
-def reconstruct(body: Body, sensor: SensorModel, cfg: DecodeConfig, device: torch.device,
-                timings: dict[str, float] | None = None) -> np.ndarray:
+def reconstruct(
+    body: Body, sensor: SensorModel, cfg: DecodeConfig, device: torch.device, timings: dict[str, float] | None = None
+) -> np.ndarray:
     """Decoded cloud (float32 ``(K, 3)``, sensor frame)."""
     t0 = time.perf_counter()
     if body.num_inducing == 0:
@@ -241,8 +264,11 @@ def reconstruct(body: Body, sensor: SensorModel, cfg: DecodeConfig, device: torc
         if len(members) == 0:
             f_t, v_t = np.zeros((len(tp.rows), len(tp.cols))), np.ones((len(tp.rows), len(tp.cols)))
         else:
-            z = torch.as_tensor(np.stack([pts.az[members], sensor.elevations_rad[pts.beam[members]]], axis=1),
-                                dtype=torch.float64, device=device)
+            z = torch.as_tensor(
+                np.stack([pts.az[members], sensor.elevations_rad[pts.beam[members]]], axis=1),
+                dtype=torch.float64,
+                device=device,
+            )
             u_t = torch.as_tensor(f_all[members] - tile.offset, dtype=torch.float64, device=device)
             az = torch.as_tensor(fine_az[wrapped[tp.eval_idx]], dtype=torch.float64, device=device)
             el = torch.as_tensor(el_rows[tp.rows], dtype=torch.float64, device=device)
@@ -277,4 +303,3 @@ def fits_exactly(body: Body, sensor: SensorModel) -> bool:
 def decodable(body: Body, sensor: SensorModel, cfg: DecodeConfig | None = None) -> int:
     """The work a decoder will spend on this body (raises ``PayloadError`` if it would refuse)."""
     return plan_decode(body, sensor, cfg or DecodeConfig()).work if body.num_inducing else 0
-

@@ -38,8 +38,16 @@ from .tiles import Points, gather_points, tile_members
 from .wire import MAX_TILE_INDUCING, Body, TileModel, dequantize_azimuth, quantize_azimuth
 
 __all__ = [
-    "FitConfig", "FitResult", "LS_FACTOR_AZ", "FIT_COLUMNS_PER_LS", "occupancy", "to_range", "layout_inducing",
-    "initial_hyper", "fit_scan", "fit_stride",
+    "FitConfig",
+    "FitResult",
+    "LS_FACTOR_AZ",
+    "FIT_COLUMNS_PER_LS",
+    "occupancy",
+    "to_range",
+    "layout_inducing",
+    "initial_hyper",
+    "fit_scan",
+    "fit_stride",
 ]
 
 # Azimuth lengthscale / mean inducing spacing along a beam (sweep in docs/vsgp.md).
@@ -165,8 +173,9 @@ def layout_inducing(occ: np.ndarray, w: np.ndarray, m: int) -> tuple[np.ndarray,
     return np.concatenate(out_rows), np.concatenate(out_cols)
 
 
-def initial_hyper(sensor: SensorModel, rows: tuple[int, int], n_occupied: int, m: int, y: np.ndarray,
-                  noise_var: float) -> Hyper:
+def initial_hyper(
+    sensor: SensorModel, rows: tuple[int, int], n_occupied: int, m: int, y: np.ndarray, noise_var: float
+) -> Hyper:
     """A tile's hyper-parameters from the sensor's geometry, before any data-driven step.
 
     Elevation: one inducing row per beam, so the lengthscale is the band's beam spacing
@@ -177,11 +186,14 @@ def initial_hyper(sensor: SensorModel, rows: tuple[int, int], n_occupied: int, m
     outputscale is the second moment of ``f - offset`` (the prior's variance). All values are
     rounded to float32, as the payload carries them, so encoder and decoder use the same GP.
     """
-    beams = sensor.elevations_rad[rows[0]: rows[1]]
+    beams = sensor.elevations_rad[rows[0] : rows[1]]
     gaps = np.diff(beams)
     gaps = gaps[gaps > 1e-6]
-    beam_step = float(np.median(gaps)) if len(gaps) else (
-        float(np.median(np.diff(sensor.elevations_rad))) if sensor.n_beams > 1 else math.radians(2.0))
+    beam_step = (
+        float(np.median(gaps))
+        if len(gaps)
+        else (float(np.median(np.diff(sensor.elevations_rad))) if sensor.n_beams > 1 else math.radians(2.0))
+    )
     beam_step = max(beam_step, 1e-4)
     n_rows = max(1, rows[1] - rows[0])
     per_beam_cells = n_occupied / n_rows
@@ -221,8 +233,9 @@ class _Scan:
     row_el: np.ndarray  # (B,) GP elevation of each row
 
 
-def _tile_bins(scan: _Scan, tiling: Tiling, t: int, reach: int, stride: int
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _tile_bins(
+    scan: _Scan, tiling: Tiling, t: int, reach: int, stride: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Tile ``t``'s fit data, binned: the occupied cells of the band (+ halo rows) and the sector
     (+ ``reach`` columns) grouped per beam into runs of ``stride`` columns (aligned to multiples of
     ``stride``); per bin its row, mean column position, mean occupancy and cell count.
@@ -272,8 +285,9 @@ def _layout_tile(scan: _Scan, tiling: Tiling, t: int, m_t: int, cfg: FitConfig, 
     return TileModel(az_code, rows + r0, np.zeros(len(rows)), tuple(h.as_list()), offset)
 
 
-def _refine_tile(scan: _Scan, tiling: Tiling, t: int, tile: TileModel, cfg: FitConfig, device: torch.device,
-                 warm: Hyper | None) -> tuple[int, list[float]]:
+def _refine_tile(
+    scan: _Scan, tiling: Tiling, t: int, tile: TileModel, cfg: FitConfig, device: torch.device, warm: Hyper | None
+) -> tuple[int, list[float]]:
     """Hyper-parameter steps on the collapsed bound (``steps > 0``), in place on ``tile``."""
     band, sector = tiling.tile(t)
     r0, r1 = tiling.band_rows(band)
@@ -284,13 +298,15 @@ def _refine_tile(scan: _Scan, tiling: Tiling, t: int, tile: TileModel, cfg: FitC
         return 0, []
     from .learn import refine
 
-    z = torch.as_tensor(np.stack([dequantize_azimuth(tile.az_code), scan.row_el[tile.beam]], axis=1),
-                        dtype=torch.float64, device=device)
+    z = torch.as_tensor(
+        np.stack([dequantize_azimuth(tile.az_code), scan.row_el[tile.beam]], axis=1), dtype=torch.float64, device=device
+    )
     rr, cc = np.nonzero(occ)
     rng = np.random.default_rng([cfg.seed, t])
     sub = np.sort(rng.choice(len(rr), size=min(cfg.subsample, len(rr)), replace=False))
-    x = torch.as_tensor(np.stack([scan.col_az[cc[sub] + c0], scan.row_el[rr[sub] + r0]], axis=1),
-                        dtype=torch.float64, device=device)
+    x = torch.as_tensor(
+        np.stack([scan.col_az[cc[sub] + c0], scan.row_el[rr[sub] + r0]], axis=1), dtype=torch.float64, device=device
+    )
     y = torch.as_tensor(f_core[sub] - tile.offset, dtype=torch.float64, device=device)
     with torch.enable_grad():
         h, z, bounds = refine(x, y, z, warm if warm is not None else Hyper(*tile.hyper), cfg)
@@ -323,8 +339,12 @@ def _layout(scan: _Scan, m_req: int, cfg: FitConfig, r_oc: float, phases: np.nda
         tiles = [_layout_tile(scan, tiling, t, int(alloc[t]), cfg, r_oc) for t in range(tiling.n_tiles)]
         body = Body(cfg.transform, r_oc, tiling, phases, tiles)
         smaller = tile_points // 2
-        if (tile_points == 0 or smaller < MIN_TILE_POINTS or fits_exactly(body, sensor)
-                or Tiling.plan(sensor, max(1, m_req), smaller) == tiling):
+        if (
+            tile_points == 0
+            or smaller < MIN_TILE_POINTS
+            or fits_exactly(body, sensor)
+            or Tiling.plan(sensor, max(1, m_req), smaller) == tiling
+        ):
             return body
         tile_points = smaller
 
@@ -338,8 +358,9 @@ def _fit_tile(scan: _Scan, body: Body, pts: Points, t: int, cfg: FitConfig, devi
         return np.zeros(0)
     h = Hyper(*tile.hyper)
     members = tile_members(body, scan.sensor, pts, t)
-    z = torch.as_tensor(np.stack([pts.az[members], scan.row_el[pts.beam[members]]], axis=1), dtype=torch.float64,
-                        device=device)
+    z = torch.as_tensor(
+        np.stack([pts.az[members], scan.row_el[pts.beam[members]]], axis=1), dtype=torch.float64, device=device
+    )
     col_step = scan.sensor.azimuth_step_rad
     band, sector = body.tiling.tile(t)
     (r0, r1), (c0, c1) = body.tiling.band_rows(band), body.tiling.sector_cols(sector)
@@ -357,8 +378,9 @@ def _fit_tile(scan: _Scan, body: Body, pts: Points, t: int, cfg: FitConfig, devi
     return u[:own].cpu().numpy()
 
 
-def fit_scan(points: np.ndarray, sensor: SensorModel, cfg: FitConfig, device: torch.device,
-             warm: list[Hyper] | None = None) -> FitResult:
+def fit_scan(
+    points: np.ndarray, sensor: SensorModel, cfg: FitConfig, device: torch.device, warm: list[Hyper] | None = None
+) -> FitResult:
     """Encode one scan into its tiles' inducing points, values and hyper-parameters.
 
     ``warm``: the previous frame's per-tile hyper-parameters, used as the refinement's starting
@@ -374,8 +396,10 @@ def fit_scan(points: np.ndarray, sensor: SensorModel, cfg: FitConfig, device: to
     n_occ = int(occ.sum())
     m_req = cfg.num_inducing if cfg.num_inducing is not None else int(math.ceil(n_occ / cfg.cells_per_point))
     if cfg.tile_points == 0 and m_req > MAX_TILE_INDUCING:
-        raise ParameterError(f"vsgp: one GP over the whole scan (tile_points=0 / mode=paper) holds at most "
-                             f"{MAX_TILE_INDUCING} inducing points, this scan asks for {m_req}")
+        raise ParameterError(
+            f"vsgp: one GP over the whole scan (tile_points=0 / mode=paper) holds at most "
+            f"{MAX_TILE_INDUCING} inducing points, this scan asks for {m_req}"
+        )
     w = occupancy_weights(occ, f, cfg.adapt)
     scan = _Scan(sensor, occ, f, np.where(occ, r, 0.0), w, sensor.azimuths_rad(), sensor.elevations_rad)
     with torch.no_grad():

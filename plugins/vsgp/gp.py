@@ -26,8 +26,19 @@ from dataclasses import dataclass
 import torch
 
 __all__ = [
-    "Hyper", "rq_cross", "rq_tensor", "rq_grid", "chord", "chord_sq", "cholesky", "collapsed_bound",
-    "posterior_inducing_mean", "Predictor", "KernelTables", "rq_from_sqdist", "reference_seconds",
+    "Hyper",
+    "rq_cross",
+    "rq_tensor",
+    "rq_grid",
+    "chord",
+    "chord_sq",
+    "cholesky",
+    "collapsed_bound",
+    "posterior_inducing_mean",
+    "Predictor",
+    "KernelTables",
+    "rq_from_sqdist",
+    "reference_seconds",
 ]
 
 # Relative jitter on K_mm's diagonal: small enough not to bias the interpolation, large enough
@@ -76,8 +87,7 @@ def chord(d: torch.Tensor) -> torch.Tensor:
     return 2 * torch.sin(d / 2)
 
 
-def rq_from_sqdist(d2: torch.Tensor, alpha: float | torch.Tensor,
-                   scale: float | torch.Tensor) -> torch.Tensor:
+def rq_from_sqdist(d2: torch.Tensor, alpha: float | torch.Tensor, scale: float | torch.Tensor) -> torch.Tensor:
     """``scale * (1 + d2/(2 alpha))^-alpha``, in place on ``d2`` when no gradient is needed.
 
     ``alpha = 1`` (the sensor-derived default) is a reciprocal instead of a log and an exp: the
@@ -91,12 +101,12 @@ def rq_from_sqdist(d2: torch.Tensor, alpha: float | torch.Tensor,
 
 def rq_cross(x1: torch.Tensor, x2: torch.Tensor, h: Hyper) -> torch.Tensor:
     """Kernel matrix between ``x1 (N, 2)`` and ``x2 (M, 2)`` (columns azimuth, elevation)."""
-    return rq_tensor(x1, x2, torch.tensor([h.ls_az, h.ls_el], dtype=x1.dtype, device=x1.device),
-                     h.alpha, h.outputscale)
+    return rq_tensor(x1, x2, torch.tensor([h.ls_az, h.ls_el], dtype=x1.dtype, device=x1.device), h.alpha, h.outputscale)
 
 
-def rq_tensor(x1: torch.Tensor, x2: torch.Tensor, ls: torch.Tensor, alpha: float | torch.Tensor,
-              scale: float | torch.Tensor) -> torch.Tensor:
+def rq_tensor(
+    x1: torch.Tensor, x2: torch.Tensor, ls: torch.Tensor, alpha: float | torch.Tensor, scale: float | torch.Tensor
+) -> torch.Tensor:
     """Same kernel with tensor hyper-parameters (differentiable): GPyTorch's
     ``ScaleKernel(RQKernel(ard_num_dims=3))`` on ``(cos az, sin az, el)`` with lengthscales
     ``(ls_az, ls_az, ls_el)`` (see :func:`chord`), but from the chord's half-angle form instead of
@@ -151,8 +161,9 @@ def cholesky(a: torch.Tensor) -> torch.Tensor:
     return factor
 
 
-def collapsed_bound(kmm: torch.Tensor, kmn: torch.Tensor, y: torch.Tensor, outputscale: torch.Tensor,
-                    noise: torch.Tensor) -> torch.Tensor:
+def collapsed_bound(
+    kmm: torch.Tensor, kmn: torch.Tensor, y: torch.Tensor, outputscale: torch.Tensor, noise: torch.Tensor
+) -> torch.Tensor:
     """Titsias' collapsed lower bound (paper eq. 4), per training point, differentiable.
 
     ``F = log N(y | 0, s2 I + Q_nn) - tr(K_nn - Q_nn) / (2 s2)`` with ``Q_nn = K_nm K_mm^-1 K_mn``,
@@ -175,8 +186,9 @@ def collapsed_bound(kmm: torch.Tensor, kmn: torch.Tensor, y: torch.Tensor, outpu
     return -0.5 * (n * math.log(2 * math.pi) + logdet + quad + trace) / n
 
 
-def posterior_inducing_mean(kmm: torch.Tensor, knm: torch.Tensor, y: torch.Tensor, h: Hyper,
-                            sqrt_weights: torch.Tensor | None = None) -> torch.Tensor:
+def posterior_inducing_mean(
+    kmm: torch.Tensor, knm: torch.Tensor, y: torch.Tensor, h: Hyper, sqrt_weights: torch.Tensor | None = None
+) -> torch.Tensor:
     """Mean of the optimal q(u) at the inducing inputs: ``K_mm (s2 K_mm + K_mn W K_nm)^-1 K_mn W y``.
 
     ``knm`` is ``(N, M)``; ``W`` (``sqrt_weights`` squared, default 1) counts how many cells each
@@ -210,8 +222,9 @@ class Predictor:
     thresholds.
     """
 
-    def __init__(self, z: torch.Tensor, u: torch.Tensor, h: Hyper, u_noise: float = 0.0,
-                 dtype: torch.dtype = torch.float64) -> None:
+    def __init__(
+        self, z: torch.Tensor, u: torch.Tensor, h: Hyper, u_noise: float = 0.0, dtype: torch.dtype = torch.float64
+    ) -> None:
         self.z, self.h, self.dtype = z.to(dtype), h, dtype
         if len(u) == 0:  # a tile with no return: the prior everywhere
             self.weights = torch.zeros(0, dtype=dtype, device=z.device)

@@ -31,8 +31,21 @@ from lwbench import RangeImage, SensorModel
 from lwbench.geometry import spherical
 
 __all__ = [
-    "BAND_BEAMS", "MAX_TILES", "MIN_SECTOR_COLS", "PHASE_LEVELS", "Tiling", "beam_phases", "phase_codes", "phases_of",
-    "project_anchored", "column_azimuths", "blend_width", "blend_weights", "HALO_LS", "HALO_ROWS", "halo_cols",
+    "BAND_BEAMS",
+    "MAX_TILES",
+    "MIN_SECTOR_COLS",
+    "PHASE_LEVELS",
+    "Tiling",
+    "beam_phases",
+    "phase_codes",
+    "phases_of",
+    "project_anchored",
+    "column_azimuths",
+    "blend_width",
+    "blend_weights",
+    "HALO_LS",
+    "HALO_ROWS",
+    "halo_cols",
     "halo_members",
 ]
 
@@ -130,8 +143,7 @@ class Tiling:
             return cls(n_beams, n_cols, 1, 1)
         bands = cls.bands_for(n_beams)
         per_band = num_inducing / bands
-        sectors = int(min(max(1, round(per_band / tile_points)), max(1, n_cols // MIN_SECTOR_COLS),
-                          MAX_TILES // bands))
+        sectors = int(min(max(1, round(per_band / tile_points)), max(1, n_cols // MIN_SECTOR_COLS), MAX_TILES // bands))
         return cls(n_beams, n_cols, bands, sectors)
 
 
@@ -181,8 +193,9 @@ def halo_cols(ls_az: float, col_step: float, tiling: Tiling) -> int:
     return int(min(math.ceil(HALO_LS * ls_az / col_step), tiling.min_sector_cols))
 
 
-def halo_members(tiling: Tiling, t: int, tile_of: np.ndarray, rows: np.ndarray, colpos: np.ndarray,
-                 reach: int) -> np.ndarray:
+def halo_members(
+    tiling: Tiling, t: int, tile_of: np.ndarray, rows: np.ndarray, colpos: np.ndarray, reach: int
+) -> np.ndarray:
     """Indices of the other tiles' inducing points (``tile_of``, beam ``rows``, column position
     ``colpos`` in ``[0, n_cols)``) that tile ``t``'s GP also holds (see :data:`HALO_LS`)."""
     band, sector = tiling.tile(t)

@@ -23,9 +23,11 @@ def _gpytorch_model(h: Hyper, device: torch.device):
     import gpytorch
 
     kernel = gpytorch.kernels.ScaleKernel(gpytorch.kernels.RQKernel(ard_num_dims=2)).to(device).double()
-    lik = gpytorch.likelihoods.GaussianLikelihood(
-        noise_constraint=gpytorch.constraints.GreaterThan(1e-12)
-    ).to(device).double()
+    lik = (
+        gpytorch.likelihoods.GaussianLikelihood(noise_constraint=gpytorch.constraints.GreaterThan(1e-12))
+        .to(device)
+        .double()
+    )
     kernel.base_kernel.lengthscale = torch.tensor([[h.ls_az, h.ls_el]], device=device, dtype=torch.float64)
     kernel.base_kernel.alpha = torch.tensor(h.alpha, device=device, dtype=torch.float64)
     kernel.outputscale = torch.tensor(h.outputscale, device=device, dtype=torch.float64)
@@ -35,13 +37,17 @@ def _gpytorch_model(h: Hyper, device: torch.device):
 
 def _hyper_of(kernel, lik) -> Hyper:
     ls = kernel.base_kernel.lengthscale.detach().reshape(-1).double().cpu().numpy()
-    vals = [float(ls[0]), float(ls[1]), float(kernel.base_kernel.alpha.detach()),
-            float(kernel.outputscale.detach()), float(lik.noise.detach())]
+    vals = [
+        float(ls[0]),
+        float(ls[1]),
+        float(kernel.base_kernel.alpha.detach()),
+        float(kernel.outputscale.detach()),
+        float(lik.noise.detach()),
+    ]
     return Hyper(*(float(np.float32(v)) for v in vals))
 
 
-def refine(x: torch.Tensor, y: torch.Tensor, z: torch.Tensor, h: Hyper, cfg
-           ) -> tuple[Hyper, torch.Tensor, list[float]]:
+def refine(x: torch.Tensor, y: torch.Tensor, z: torch.Tensor, h: Hyper, cfg) -> tuple[Hyper, torch.Tensor, list[float]]:
     """Adam on the collapsed bound; returns the best hyper-parameters (and inducing inputs) seen.
 
     Stops when a step improves the per-point bound by less than ``cfg.tol`` nats or makes it

@@ -40,8 +40,17 @@ from lwbench import PayloadError, check_count, zstd_decompress
 from .grid import BAND_BEAMS, MAX_TILES, MIN_SECTOR_COLS, Tiling
 
 __all__ = [
-    "BODY_FORMATS", "TRANSFORMS", "MAX_INDUCING", "MAX_TILE_INDUCING", "Body", "TileModel", "body_size",
-    "pack_body", "unpack_body", "quantize_azimuth", "AZ_CODES",
+    "BODY_FORMATS",
+    "TRANSFORMS",
+    "MAX_INDUCING",
+    "MAX_TILE_INDUCING",
+    "Body",
+    "TileModel",
+    "body_size",
+    "pack_body",
+    "unpack_body",
+    "quantize_azimuth",
+    "AZ_CODES",
 ]
 
 #: Inducing points one payload may carry: a 128-beam scan at ratio 30 needs ~12,000 (q16z); a
@@ -94,7 +103,8 @@ class Body:
 def quantize_azimuth(az: np.ndarray) -> np.ndarray:
     """Azimuth (rad) -> u16 code; ``dequantize_azimuth`` gives the value the GP uses."""
     return (np.round((np.asarray(az) + math.pi) / (2 * math.pi) * AZ_CODES).astype(np.int64) % AZ_CODES).astype(
-        np.uint16)
+        np.uint16
+    )
 
 
 def dequantize_azimuth(code: np.ndarray) -> np.ndarray:
@@ -118,8 +128,10 @@ def _value_range(v: np.ndarray) -> tuple[float, float]:
 
 def pack_body(fmt: str, body: Body) -> bytes:
     qfmt = "q16" if fmt == "q16z" else fmt
-    head = [_HEAD.pack(TRANSFORMS.index(body.transform), body.tiling.n_bands, body.tiling.n_sectors, body.r_oc),
-            np.asarray(body.phase_codes, dtype=np.uint8).tobytes()]
+    head = [
+        _HEAD.pack(TRANSFORMS.index(body.transform), body.tiling.n_bands, body.tiling.n_sectors, body.r_oc),
+        np.asarray(body.phase_codes, dtype=np.uint8).tobytes(),
+    ]
     values = []
     for t in body.tiles:
         head.append(_TILE.pack(len(t.value), *t.hyper, t.offset))
@@ -133,9 +145,11 @@ def pack_body(fmt: str, body: Body) -> bytes:
     az = [t.az_code.astype("<u2") for t in body.tiles]
     if fmt == "q16z":  # delta within each tile (wraps modulo 2^16, undone by cumsum)
         az = [np.diff(a, prepend=np.uint16(0)).astype("<u2") if len(a) else a for a in az]
-    planes = [np.concatenate(az).astype("<u2") if az else np.zeros(0, "<u2"),
-              np.concatenate([t.beam for t in body.tiles]).astype(np.uint8) if body.tiles else np.zeros(0, np.uint8),
-              np.concatenate(values) if values else np.zeros(0, _VALUE_DTYPE[qfmt])]
+    planes = [
+        np.concatenate(az).astype("<u2") if az else np.zeros(0, "<u2"),
+        np.concatenate([t.beam for t in body.tiles]).astype(np.uint8) if body.tiles else np.zeros(0, np.uint8),
+        np.concatenate(values) if values else np.zeros(0, _VALUE_DTYPE[qfmt]),
+    ]
     raw = b"".join(head) + b"".join(p.tobytes() for p in planes)
     if fmt != "q16z":
         return raw
@@ -153,8 +167,10 @@ def _check_tiling(n_bands: int, n_sectors: int, n_beams: int, n_cols: int) -> Ti
     bands_ok = n_bands in (1, max(1, math.ceil(n_beams / BAND_BEAMS)))
     sectors_ok = 1 <= n_sectors <= max(1, n_cols // MIN_SECTOR_COLS) and n_bands * n_sectors <= MAX_TILES
     if not (bands_ok and sectors_ok):
-        raise PayloadError(f"vsgp payload: a tiling of {n_bands} bands x {n_sectors} sectors does not fit the "
-                           f"sensor ({n_beams} beams, {n_cols} columns)")
+        raise PayloadError(
+            f"vsgp payload: a tiling of {n_bands} bands x {n_sectors} sectors does not fit the "
+            f"sensor ({n_beams} beams, {n_cols} columns)"
+        )
     return Tiling(n_beams, n_cols, n_bands, n_sectors)
 
 
