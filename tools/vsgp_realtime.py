@@ -10,6 +10,7 @@ workload timed in the same process, interleaved with the codec's calls (the mach
         --rangeimage step=0.05,0.1,0.2,0.4
     python tools/vsgp_realtime.py warm /tmp/simtunnel --frames 40 --param mode=paper
     python tools/vsgp_realtime.py threshold /tmp/simurban --frames 6 --v-floor 0.03 0.1 0.2
+    python tools/vsgp_realtime.py errors ../shared/data/real/kitti00_frames0-1 --param body=q16z --param bytes=50000
 
 ``--param KEY=VALUE`` sets a vsgp parameter for every call (repeatable). The scores are lwbench's
 own range metrics (``lwbench_metrics.ranges``); the reference is :func:`reference_seconds` (a
@@ -242,9 +243,35 @@ def cmd_warm(args: argparse.Namespace) -> None:
         )
 
 
+def cmd_errors(args: argparse.Namespace) -> None:
+    """Where the range RMSD comes from: percentiles of ``|r - r_hat|`` over the metric's pairs
+    and the share of the squared error carried by the worst 5 % of them."""
+    from lwbench_metrics.ranges import direction_coordinates, match_returns
+
+    frames = load_frames(args.folder, args.frames)
+    print(f"{args.folder}: {len(frames)} frames, {_load()}\n")
+    print("| frame | pairs | RMSD cm | median cm | p75 | p90 | p95 | p99 | worst 5 % share of squared error |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    codec = VSGPCodec(**{"device": "cpu", **args.param})
+    for fr in frames:
+        decoded = codec.decode(codec.encode(fr))
+        pc, pr = direction_coordinates(fr.points, fr.sensor)
+        qc, qr = direction_coordinates(decoded, fr.sensor)
+        partner, _ = match_returns(fr.points, decoded, pc, qc, fr.sensor, 0.5)
+        ok = partner >= 0
+        e = np.abs(pr[ok] - qr[partner[ok]])
+        sq = np.sort(e**2)
+        pct = " | ".join(f"{100 * v:.1f}" for v in np.percentile(e, [50, 75, 90, 95, 99]))
+        print(
+            f"| {fr.index} | {int(ok.sum()):,} | {100 * np.sqrt(sq.mean()):.1f} | {pct} | "
+            f"{sq[-max(1, len(sq) // 20) :].sum() / sq.sum():.2f} |",
+            flush=True,
+        )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("command", choices=["speed", "table", "rd", "warm", "threshold"])
+    ap.add_argument("command", choices=["speed", "table", "rd", "warm", "threshold", "errors"])
     ap.add_argument("folder")
     ap.add_argument("--frames", type=int, default=10)
     ap.add_argument("--repeats", type=int, default=1, help="speed: best of this many calls per frame")
@@ -262,9 +289,14 @@ def main() -> None:
     ap.add_argument("--v-floor", type=float, nargs="+", default=[0.01, 0.03, 0.1, 0.2, 0.3])
     args = ap.parse_args()
     args.param = parse_params(args.param)
-    {"speed": cmd_speed, "table": cmd_table, "rd": cmd_rd, "warm": cmd_warm, "threshold": cmd_threshold}[args.command](
-        args
-    )
+    {
+        "speed": cmd_speed,
+        "table": cmd_table,
+        "rd": cmd_rd,
+        "warm": cmd_warm,
+        "threshold": cmd_threshold,
+        "errors": cmd_errors,
+    }[args.command](args)
 
 
 if __name__ == "__main__":
