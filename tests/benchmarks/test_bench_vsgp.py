@@ -27,8 +27,11 @@ def frames() -> list[Frame]:
     return [tunnel_scan(seed=s) for s in range(20)]
 
 
+_COUNTS = ("steps_run", "num_inducing", "tiles")  # last_timings' counts, not seconds
+
+
 def _stages(codec: VSGPCodec, calls: list[dict[str, float]]) -> dict[str, float]:
-    keys = [k for k in calls[0] if k != "steps_run"]
+    keys = [k for k in calls[0] if k not in _COUNTS]
     return {k: round(1000 * float(np.median([c[k] for c in calls])), 2) for k in keys}
 
 
@@ -52,6 +55,7 @@ def test_bench_vsgp_encode(benchmark, body):
     benchmark.extra_info["x_reference"] = benchmark.stats.stats.median / ref
     benchmark.extra_info["reference_ms"] = 1000 * ref
     benchmark.extra_info["stages_ms"] = _stages(codec, calls)
+    benchmark.extra_info["num_inducing_median"] = float(np.median([c["num_inducing"] for c in calls]))
 
 
 @pytest.mark.benchmark
