@@ -196,9 +196,9 @@ def _firing_reading(az: np.ndarray, el: np.ndarray, starts: np.ndarray) -> Readi
     return Reading(np.sort(table), step, {"firings": len(sizes), "complete firings": len(full)})
 
 
-def firings_per_turn(az: np.ndarray, labels: np.ndarray, n: int, placeholders: np.ndarray | None = None) -> int:
+def firings_per_turn(az: np.ndarray, labels: np.ndarray, n: int, no_return: np.ndarray | None = None) -> int:
     """Firings a turn, from the densest ring: its point count when the driver writes a point for
-    every firing (the ring holds placeholders), else the firing slots along its sweep -- each
+    every firing (the ring holds no-return markers), else the firing slots along its sweep -- each
     step between neighbouring returns is a whole number of firing steps (the ring's short steps:
     a gap of dropped returns is several, a second return at one azimuth none)."""
     order = np.lexsort((np.mod(az, 360.0), labels))
@@ -210,7 +210,7 @@ def firings_per_turn(az: np.ndarray, labels: np.ndarray, n: int, placeholders: n
         count = len(ring)
         if count < 8:
             continue
-        if placeholders is not None and placeholders[order[bounds[k] : bounds[k + 1]]].any():
+        if no_return is not None and no_return[order[bounds[k] : bounds[k + 1]]].any():
             best = max(best, count)
             continue
         d = np.diff(np.r_[ring, ring[0] + 360.0])

@@ -3,11 +3,11 @@
 The rules, in order (the first that holds decides, and :class:`SensorEstimate` says which):
 
 1. **ring field** (PCD ``ring``, nuScenes): per-ring median elevation of the *returns* -- the
-   placeholder points a driver writes for rays without a return (nuScenes: under 0.1 mm from the
+   no-return points a driver writes for rays without a return (nuScenes: under 0.1 mm from the
    origin) are left out, else a ring that mostly saw the sky
-   takes the placeholder's meaningless elevation (an HDL-32E's rings 22-31 landed at -3.67 deg).
-   The azimuth step comes from the points per ring: a driver that writes placeholders writes one
-   point per firing, so the densest ring's count is the firings a turn; without placeholders
+   takes a no-return point's meaningless elevation (an HDL-32E's rings 22-31 landed at -3.67 deg).
+   The azimuth step comes from the points per ring: a driver that writes no-return markers writes one
+   point per firing, so the densest ring's count is the firings a turn; without such markers
    the firings missing in the ring's gaps are added back;
 2. **ring-major / firing-major order** (:mod:`lwbench.beam_order`);
 3. a **guess** (:mod:`lwbench.beam_guess`): a preset's table that fits the elevations within a
@@ -16,7 +16,7 @@ The rules, in order (the first that holds decides, and :class:`SensorEstimate` s
 
 Only 1 and 2 are *exact* (the table is the sensor's); a guess comes with a warning, and the
 loaders say so (``sensor_guessed``). The range window is the data's: the nearest and farthest
-return, placeholders left out (:data:`~lwbench.sensor_specs.PLACEHOLDER_RANGE_M`).
+return, no-return markers left out (:data:`~lwbench.sensor_specs.NO_RETURN_RANGE_M`).
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ import numpy as np
 
 from lwbench.beam_guess import METHOD_HISTOGRAM, METHOD_PRESET, METHOD_UNIFORM, guess_beams
 from lwbench.beam_order import Reading, angles, firing_major, firings_per_turn, ring_major, sweep_steps
-from lwbench.sensor_specs import DERIVED_RANGE_NOISE_M, MIN_AZIMUTH_STEP_DEG, PLACEHOLDER_RANGE_M, SENSOR_SPECS
+from lwbench.sensor_specs import DERIVED_RANGE_NOISE_M, MIN_AZIMUTH_STEP_DEG, NO_RETURN_RANGE_M, SENSOR_SPECS
 
 __all__ = [
     "SensorEstimate",
@@ -73,11 +73,11 @@ class SensorEstimate:
 
 
 def valid_returns(points: np.ndarray, r: np.ndarray | None = None) -> np.ndarray:
-    """Which points are returns: not nearer than :data:`PLACEHOLDER_RANGE_M` (placeholders for
+    """Which points are returns: not nearer than :data:`NO_RETURN_RANGE_M` (no-return markers for
     rays without a return are written at the origin or a hair from it)."""
     if r is None:
         r = np.linalg.norm(np.asarray(points, dtype=np.float64), axis=1)
-    return np.asarray(r) >= PLACEHOLDER_RANGE_M
+    return np.asarray(r) >= NO_RETURN_RANGE_M
 
 
 def coverage_deg(az: np.ndarray, step: float) -> int:
@@ -159,7 +159,7 @@ def estimate_sensor(
             guess = guess_beams(az[valid], el[valid], r[valid], bin_deg, quick=quick)
             reading, method, rule = guess.reading, guess.method, guess.rule
     rv = r[valid]
-    min_range = max(PLACEHOLDER_RANGE_M, float(np.floor(rv.min() * 10) / 10))
+    min_range = max(NO_RETURN_RANGE_M, float(np.floor(rv.min() * 10) / 10))
     max_range = float(np.ceil(rv.max()))
     noise = DERIVED_RANGE_NOISE_M
     if method == METHOD_PRESET:

@@ -104,7 +104,7 @@ def derive_sensor(
     """Estimate a sensor model from one real scan: the ring field when there is one, else the
     point order (ring-major, then firing-major), else a guess (with a :class:`DataWarning` when
     ``warn``; ``quick``: a guess from the histogram alone, to check a later scan). The range
-    window is the data's (placeholder points left out)."""
+    window is the data's (no-return points left out)."""
     estimate = estimate_sensor(points, ring=ring, rate_hz=rate_hz, name=name, bin_deg=bin_deg, quick=quick)
     if warn:
         for msg in estimate.warnings:
@@ -125,7 +125,7 @@ def sensor_from_points(points: np.ndarray, **kwargs: Any) -> SensorModel:
 
 
 def outside_range_window(points: np.ndarray, sensor: SensorModel, min_share: float = 0.001) -> str | None:
-    """What of a scan's returns lies outside ``sensor``'s range window (placeholders left out),
+    """What of a scan's returns lies outside ``sensor``'s range window (no-return markers left out),
     in words, or None when less than ``min_share`` of them does: a model derived from one scan
     knows only that scan's nearest and farthest return, and grid codecs drop what lies beyond
     (a stray return or two a scan is not worth a warning on every frame)."""

@@ -28,7 +28,7 @@ __all__ = [
     "MAX_RANGE_M",
     "MAX_RATE_HZ",
     "DERIVED_RANGE_NOISE_M",
-    "PLACEHOLDER_RANGE_M",
+    "NO_RETURN_RANGE_M",
 ]
 
 # What a real spinning LiDAR has, with room: 128 beams is the most sold today (OS1/OS2-128,
@@ -45,9 +45,9 @@ MAX_RATE_HZ = 1_000.0
 DERIVED_RANGE_NOISE_M = 0.03
 
 #: No LiDAR measures closer than this (the shortest minimum range in the specs below is 5 cm,
-#: PandarXT); points nearer the origin are placeholders a driver wrote for rays without a return
+#: PandarXT); points nearer the origin are no-return markers a driver wrote for rays without a return
 #: (nuScenes writes them at under 0.1 mm), not returns.
-PLACEHOLDER_RANGE_M = 0.05
+NO_RETURN_RANGE_M = 0.05
 
 
 @dataclass(frozen=True)

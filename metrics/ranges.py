@@ -23,7 +23,7 @@ So the pairing is done on the returns' directions, relative to each other:
 Both clouds are read the same way first: bit-identical duplicates count as one return (nuScenes
 writes them, Draco merges them, a selection codec may return a point twice -- a duplicate copy
 must not pair with another original's window), and points nearer than the sensor's minimum
-range are not returns (the placeholders drivers write for rays without a return). A return
+range are not returns (the no-return markers drivers write for rays without a return). A return
 more than :data:`_BEAM_MARGIN` beam spacings outside the beam table has no window: only a
 bit-identical copy of it is its partner.
 
@@ -264,7 +264,7 @@ class RangeMetric(FrameMetric):
         MetricId("false_returns", "share", LOWER),  # behind --columns (the board fits 120 columns)
     )
     description = (
-        "original and decoded returns (each de-duplicated, placeholders nearer than the min range left out) "
+        "original and decoded returns (each de-duplicated, no-return markers nearer than the min range left out) "
         "paired one-to-one, nearest in 3-D first, within tolerance x the beam and azimuth spacing of each other: "
         "RMSD (m) of range differences over pairs; coverage = share of original returns with a partner; "
         "false_returns = share of decoded returns with no partner and no original nearby"

@@ -100,7 +100,7 @@ class LwbenchGroup(TyperGroup):
                 reg.record_failure(name, "lwbench_register_commands",
                                    LwbenchError(f"a plugin command may not replace lwbench's own {name!r}"))
                 continue
-            if not isinstance(getattr(command, "rich_help_panel", None), str):  # None or typer's placeholder
+            if not isinstance(getattr(command, "rich_help_panel", None), str):  # None or typer's default marker
                 command.rich_help_panel = PLUGIN_PANEL
             self.add_command(command, name)
 
