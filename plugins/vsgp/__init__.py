@@ -4,9 +4,10 @@ The scout models the occupancy ``f`` of each return over (azimuth, elevation) wi
 (RQ-ARD kernel) -- local ones over tiles of the scan by default (``grid.py``), or one GP over the
 whole scan as in the paper (``mode=paper``) -- and sends each tile's inducing points (azimuth,
 beam, posterior occupancy) plus its hyper-parameters; the base predicts the surface on the
-scan's own grid and drops cells whose predictive variance says "free space". See
-``encoder.py`` / ``decoder.py`` for why each step is done the way it is and ``docs/vsgp.md``
-for the measurements behind the defaults.
+scan's own grid and drops cells whose predictive variance says "free space". With
+``residual=TAU`` the surface becomes a predictor and a residual layer follows it (``residuals.py``):
+every return decoded within ``TAU``. See ``encoder.py`` / ``decoder.py`` for why each step is done
+the way it is and ``docs/vsgp.md`` for the measurements behind the defaults.
 """
 
 from __future__ import annotations
@@ -76,7 +77,7 @@ class VSGPCodec(RepresentationCodec):
 
     name = "vsgp"
     in_default_run = True
-    version = "2"
+    version = "3"
     description = "variational sparse GP of the occupancy surface (local RQ-ARD GPs, collapsed Titsias bound)"
     supports_gpu = True
     params = (
@@ -172,6 +173,23 @@ class VSGPCodec(RepresentationCodec):
             "start each frame's refinement from the previous frame's "
             "hyper-parameters (a stream encoded in order; needs steps > 0)",
         ),
+        Param(
+            "residual",
+            "float",
+            0.0,
+            "residual layer: every return within this many m of its decoded range, a point "
+            "per return (0: off, the paper's codec; on, upsample and the variance rule do not apply)",
+            low=0.0,
+            high=100.0,
+        ),
+        Param(
+            "predictor",
+            "str",
+            "gp",
+            "what the residual layer corrects: gp (the surface) or none (no GP is sent: the "
+            "control that shows what the GP is worth as a predictor)",
+            choices=("gp", "none"),
+        ),
         Param("body", "str", "float32", "payload body format", choices=BODY_FORMATS),
         Param("k_m", "float", 0.1, "variance threshold: weight of the grid's mean variance", low=-100.0, high=100.0),
         Param("k_std", "float", 0.0, "variance threshold: weight of the grid's variance std", low=-100.0, high=100.0),
@@ -254,16 +272,50 @@ class VSGPCodec(RepresentationCodec):
         )
 
     # -- encode ------------------------------------------------------------------------------
-    def _fit(self, frame: Frame, cfg: FitConfig) -> tuple[FitResult, bytes]:
-        from .encoder import fit_scan
+    def _check_config(self) -> None:
+        c = self.config
+        if c["predictor"] == "none" and not c["residual"] > 0:
+            raise ParameterError("vsgp: predictor=none sends no surface; it needs a residual layer (residual > 0)")
+        if c["residual"] > 0 and c["bytes"]:
+            raise ParameterError(
+                "vsgp: bytes= sizes the GP alone and the residual layer's size follows from the scan; "
+                "with residual > 0 set the GP's size with num_inducing or cells_per_point"
+            )
 
-        warm = self._warm if self.config["warm_start"] else None
-        res = fit_scan(frame.points, frame.sensor, cfg, self._device(), warm)
-        t = time.perf_counter()
+    def _fit(self, frame: Frame, cfg: FitConfig) -> tuple[FitResult, bytes]:
+        from .encoder import empty_body, fit_scan
+
+        if self.config["predictor"] == "none":
+            res = empty_body(frame.points, frame.sensor, cfg)
+        else:
+            warm = self._warm if self.config["warm_start"] else None
+            res = fit_scan(frame.points, frame.sensor, cfg, self._device(), warm)
         meta = {"sensor": self.sensor_meta(frame.sensor), "body": self.config["body"]}
-        data = self.make_payload(frame, meta, pack_body(self.config["body"], res.body))
+        body = pack_body(self.config["body"], res.body)
+        if self.config["residual"] > 0:
+            section = self._residual_section(frame, res)
+            meta["residual"] = len(section)
+            body += section
+        t = time.perf_counter()
+        data = self.make_payload(frame, meta, body)
         res.timings["serialize"] = time.perf_counter() - t
         return res, data
+
+    def _residual_section(self, frame: Frame, res: FitResult) -> bytes:
+        """The residual layer against what this codec's decoder will predict (residuals.py)."""
+        from .decoder import DecodeConfig, predict_grid
+        from .residuals import clamp_prediction, pack_residuals, scan_slots
+
+        t = time.perf_counter()
+        sensor = frame.sensor
+        pred = predict_grid(res.body, sensor, DecodeConfig(), self._device())
+        slots = scan_slots(frame.points, sensor, res.body.phase_codes)
+        rows, cols = np.divmod(slots.cell, sensor.n_azimuth)
+        section, _ = pack_residuals(
+            slots, clamp_prediction(pred.ranges[rows, cols], sensor), self.config["residual"], sensor
+        )
+        res.timings["residual"] = time.perf_counter() - t
+        return section
 
     def _overhead(self, frame: Frame) -> int:
         meta = {"sensor": self.sensor_meta(frame.sensor), "body": self.config["body"]}
@@ -317,6 +369,7 @@ class VSGPCodec(RepresentationCodec):
             return self._encode(frame)
 
     def _encode(self, frame: Frame) -> bytes:
+        self._check_config()
         cfg = self.fit_config()
         res, data = self._encode_to_budget(frame, cfg) if self.config["bytes"] else self._fit(frame, cfg)
         from .decoder import DecodeConfig, decodable
@@ -352,18 +405,33 @@ class VSGPCodec(RepresentationCodec):
         sensor = self.read_sensor(payload)
         import torch
 
-        from .decoder import reconstruct
+        from .decoder import reconstruct, reconstruct_residual
 
-        body = unpack_body(fmt, payload.body, sensor.n_beams, sensor.n_azimuth)
+        gp_part, section = self._split_residual(payload)
+        body = unpack_body(fmt, gp_part, sensor.n_beams, sensor.n_azimuth)
         timings = {"parse": time.perf_counter() - t0}
         try:
-            pts = reconstruct(body, sensor, self.decode_config(), self._device(), timings)
+            if section is None:
+                pts = reconstruct(body, sensor, self.decode_config(), self._device(), timings)
+            else:
+                pts = reconstruct_residual(body, section, sensor, self._device(), timings)
         except torch.linalg.LinAlgError as exc:
             raise PayloadError(f"vsgp payload: inducing points do not define a valid GP ({exc})") from None
         self.last_timings = timings
         from lwbench import checked_cloud
 
         return checked_cloud(pts, self.name, max_range=sensor.max_range)  # no point past its sensor's reach
+
+    def _split_residual(self, payload: Any) -> tuple[bytes, bytes | None]:
+        """The GP body and the residual section (``None`` without one): the metadata field
+        ``residual`` is the section's length, at the end of the body."""
+        if "residual" not in payload.meta:
+            return payload.body, None
+        n = self.meta_field(payload, "residual", int)
+        if not 0 < n <= len(payload.body):
+            raise PayloadError(f"vsgp payload: residual section of {n} bytes in a body of {len(payload.body)}")
+        cut = len(payload.body) - n
+        return payload.body[:cut], payload.body[cut:]
 
 
 @hookimpl

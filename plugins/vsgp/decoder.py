@@ -33,6 +33,7 @@ from lwbench.geometry import cartesian
 from .encoder import to_range, value_noise
 from .gp import Hyper, KernelTables, Predictor
 from .grid import Tiling, blend_weights, blend_width, phases_of
+from .residuals import apply_residuals, clamp_prediction, slot_shift, unpack_residuals
 from .tiles import gather_points, tile_members
 from .wire import Body
 
@@ -43,6 +44,10 @@ __all__ = [
     "auto_stride",
     "variance_mask",
     "reconstruct",
+    "reconstruct_residual",
+    "GridPrediction",
+    "predict_grid",
+    "grid_points",
     "query_rows",
     "FLOPS_PER_UNIT",
     "WORK_BUDGET",
@@ -239,18 +244,33 @@ def variance_mask(var: np.ndarray, k_m: float, k_std: float, floor: float = 0.0)
     return var <= max(k_m * var.mean() + k_std * var.std(), floor)
 
 
-def reconstruct(
+@dataclass
+class GridPrediction:
+    """The decoded surface on the query grid, before it becomes points: the range of every
+    cell, which cells the variance rule keeps, and where each row and column points."""
+
+    ranges: np.ndarray  # (rows, cols) metres
+    keep: np.ndarray  # (rows, cols) bool
+    el_rows: np.ndarray  # (rows,) elevation rad
+    beam_of: np.ndarray  # (rows,) the beam below each row (its phase)
+    fine_az: np.ndarray  # (cols,) azimuth of each column's centre at phase 0.5
+
+
+def predict_grid(
     body: Body, sensor: SensorModel, cfg: DecodeConfig, device: torch.device, timings: dict[str, float] | None = None
-) -> np.ndarray:
-    """Decoded cloud (float32 ``(K, 3)``, sensor frame)."""
+) -> GridPrediction:
+    """Every tile's prediction on the (``upsample``-times finer) grid, blended, with the
+    variance rule applied: what the encoder also needs to know which cells its decoder gets
+    wrong (``residuals.py``)."""
     t0 = time.perf_counter()
-    if body.num_inducing == 0:
-        return np.zeros((0, 3), dtype=np.float32)
-    plan = plan_decode(body, sensor, cfg)
     u = cfg.upsample
     el_rows, beam_of = query_rows(sensor, u)
     n_cols = sensor.n_azimuth * u
     fine_az = sensor.azimuths_rad()[0] + np.arange(n_cols) * sensor.azimuth_step_rad / u
+    if body.num_inducing == 0:
+        shape = (len(el_rows), n_cols)
+        return GridPrediction(np.zeros(shape), np.zeros(shape, dtype=bool), el_rows, beam_of, fine_az)
+    plan = plan_decode(body, sensor, cfg)
     f_acc = np.zeros((len(el_rows), n_cols))
     v_acc = np.zeros((len(el_rows), n_cols))
     pts = gather_points(body, sensor)
@@ -278,16 +298,57 @@ def reconstruct(
             v_t = _interpolate(var_e, tp.var_idx, len(tp.cols), cubic=False) / h.outputscale
         f_acc[np.ix_(tp.rows, wrapped)] += tp.weights * f_t
         v_acc[np.ix_(tp.rows, wrapped)] += tp.weights * v_t
-    t1 = time.perf_counter()
     r = to_range(f_acc, body.transform, body.r_oc)
     r_max = min(body.r_oc, sensor.max_range)
     keep = variance_mask(v_acc, cfg.k_m, cfg.k_std, cfg.v_floor) & (r >= sensor.min_range) & (r < r_max)
-    rows, cols = np.nonzero(keep)
-    phase = phases_of(body.phase_codes)[beam_of[rows]]
-    az_out = fine_az[cols] + (phase - 0.5) * sensor.azimuth_step_rad
-    pts = cartesian(r[rows, cols], az_out, el_rows[rows])
     if timings is not None:
-        timings["predict"] = t1 - t0
+        timings["predict"] = time.perf_counter() - t0
+    return GridPrediction(r, keep, el_rows, beam_of, fine_az)
+
+
+def grid_points(
+    pred: GridPrediction,
+    body: Body,
+    sensor: SensorModel,
+    rows: np.ndarray,
+    cols: np.ndarray,
+    ranges: np.ndarray,
+    shift: np.ndarray | float = 0.0,
+) -> np.ndarray:
+    """Points at cells ``(rows, cols)`` of the prediction's grid with these ranges, each
+    ``shift`` azimuth steps from its cell's anchored centre."""
+    phase = phases_of(body.phase_codes)[pred.beam_of[rows]]
+    az_out = pred.fine_az[cols] + (phase - 0.5 + shift) * sensor.azimuth_step_rad
+    return cartesian(ranges, az_out, pred.el_rows[rows])
+
+
+def reconstruct(
+    body: Body, sensor: SensorModel, cfg: DecodeConfig, device: torch.device, timings: dict[str, float] | None = None
+) -> np.ndarray:
+    """Decoded cloud (float32 ``(K, 3)``, sensor frame)."""
+    pred = predict_grid(body, sensor, cfg, device, timings)
+    t1 = time.perf_counter()
+    rows, cols = np.nonzero(pred.keep)
+    pts = grid_points(pred, body, sensor, rows, cols, pred.ranges[rows, cols])
+    if timings is not None:
+        timings["sampling"] = time.perf_counter() - t1
+    return pts.astype(np.float32)
+
+
+def reconstruct_residual(
+    body: Body, section: bytes, sensor: SensorModel, device: torch.device, timings: dict[str, float] | None = None
+) -> np.ndarray:
+    """Decoded cloud of a payload with a residual layer (``residuals.py``): a point per slot,
+    its range the GP's prediction corrected by the slot's residual. The prediction is the
+    default decoder's on the sensor's own grid -- the one the encoder measured its residuals
+    against -- whatever this decoder's ``upsample``, ``stride`` or variance rule."""
+    res = unpack_residuals(section, sensor)
+    pred = predict_grid(body, sensor, DecodeConfig(), device, timings)
+    t1 = time.perf_counter()
+    rows, cols = np.divmod(res.slots.cell, sensor.n_azimuth)
+    ranges = apply_residuals(clamp_prediction(pred.ranges[rows, cols], sensor), res.coded, res.k, res.q, sensor)
+    pts = grid_points(pred, body, sensor, rows, cols, ranges, slot_shift(res.slots))
+    if timings is not None:
         timings["sampling"] = time.perf_counter() - t1
     return pts.astype(np.float32)
 

@@ -48,6 +48,7 @@ __all__ = [
     "initial_hyper",
     "fit_scan",
     "fit_stride",
+    "empty_body",
 ]
 
 # Azimuth lengthscale / mean inducing spacing along a beam (sweep in docs/vsgp.md).
@@ -417,3 +418,15 @@ def fit_scan(
             tile.value = _fit_tile(scan, body, pts, t, cfg, device)
     timings = {"projection": t1 - t0, "layout": t2 - t1, "refine": t3 - t2, "fit": time.perf_counter() - t3}
     return FitResult(body, steps, bounds, timings)
+
+
+def empty_body(points: np.ndarray, sensor: SensorModel, cfg: FitConfig) -> FitResult:
+    """A body with no inducing point -- only the beams' phases and one empty GP, which predicts
+    nothing: the residual layer's control (``predictor=none``), which measures what the GP
+    surface is worth as a predictor against coding every range on its own."""
+    t0 = time.perf_counter()
+    r_oc = float(np.float32(cfg.r_oc or sensor.max_range))
+    _, phases = project_anchored(points, sensor)
+    tile = TileModel(np.zeros(0, np.uint16), np.zeros(0, np.int64), np.zeros(0), (1.0, 1.0, 1.0, 1.0, 1e-4), 0.0)
+    body = Body(cfg.transform, r_oc, Tiling.plan(sensor, 1, 0), phases, [tile])
+    return FitResult(body, timings={"projection": time.perf_counter() - t0})
