@@ -3,6 +3,7 @@ CRC re-sealed), decoded out of process, counted by outcome -- and *absurd* outpu
 point farther than the payload's sensor can see (its max range) counts as a failure too.
 
     PYTHONPATH=tools python tools/vsgp_fuzz.py --cases 3000
+    PYTHONPATH=tools python tools/vsgp_fuzz.py --cases 3000 --param residual=0.1   # the residual layer
     PYTHONPATH=tools:/tmp/old VSGP_FUZZ_BASE=vsgp_old python tools/vsgp_fuzz.py --cases 3000
 
 ``VSGP_FUZZ_BASE`` names the package whose ``VSGPCodec`` is fuzzed (default: the installed
@@ -50,6 +51,7 @@ def worst_payloads() -> list[tuple[str, bytes]]:
     within a second of CPU."""
     from lwbench_plugins.vsgp.decoder import DecodeConfig, plan_decode
     from lwbench_plugins.vsgp.grid import Tiling
+    from lwbench_plugins.vsgp.residuals import MAX_SLOTS
     from lwbench_plugins.vsgp.wire import MAX_INDUCING, MAX_TILE_INDUCING, Body, TileModel, pack_body
 
     from lwbench import Payload, PayloadError, get_sensor
@@ -89,7 +91,23 @@ def worst_payloads() -> list[tuple[str, bytes]]:
         meta = {"sensor": sensor.to_wire(), "body": "q16"}
         label = f"{preset} {bands}x{sectors} tiles x {per_tile} points"
         out.append((label, Payload("vsgp", meta, pack_body("q16", body), None).to_bytes()))
+        section = _fullest_residuals(sensor, rng)
+        meta = {**meta, "residual": len(section)}
+        label += f" + a residual layer of {MAX_SLOTS} coded returns in every cell"
+        out.append((label, Payload("vsgp", meta, pack_body("q16", body) + section, None).to_bytes()))
     return out
+
+
+def _fullest_residuals(sensor, rng) -> bytes:
+    """The largest residual section a sensor admits: every cell holds MAX_SLOTS returns and
+    every one is coded, with incompressible residuals."""
+    from lwbench_plugins.vsgp.residuals import MAX_SLOTS, Slots, pack_residuals
+
+    counts = np.full(sensor.n_rays, MAX_SLOTS, np.int64)
+    cell = np.repeat(np.arange(sensor.n_rays), MAX_SLOTS)
+    rank = np.tile(np.arange(MAX_SLOTS), sensor.n_rays)
+    truth = rng.uniform(sensor.min_range, sensor.max_range, len(cell))
+    return pack_residuals(Slots(counts, cell, rank, truth), np.full(len(cell), sensor.min_range), 1e-3, sensor)[0]
 
 
 def main() -> None:
@@ -98,8 +116,19 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cases", type=int, default=3000)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--worst", action="store_true", help="decode the hand-made worst cases (v2 only) and stop")
+    ap.add_argument(
+        "--worst",
+        action="store_true",
+        help="decode the hand-made worst cases (with and without a residual layer) and stop",
+    )
+    ap.add_argument(
+        "--param", action="append", default=[], metavar="KEY=VALUE", help="an encoder parameter of the seeds"
+    )
     args = ap.parse_args()
+    params = {"num_inducing": 100}
+    for kv in args.param:
+        key, value = kv.split("=", 1)
+        params[key] = float(value) if key == "residual" else value
     if args.worst:
         with DecodeServer() as server:
             for label, data in worst_payloads():
@@ -110,7 +139,7 @@ def main() -> None:
                 )
         return
     with DecodeServer() as server:
-        r = fuzz_codec(Checked, {"num_inducing": 100}, cases=args.cases, seed=args.seed, server=server)
+        r = fuzz_codec(Checked, params, cases=args.cases, seed=args.seed, server=server)
     print(f"{os.environ.get('VSGP_FUZZ_BASE', 'lwbench_plugins.vsgp')}: {r.summary()}")
     print(f"outcomes: {dict(r.outcomes)}; verdicts: {dict(r.verdicts)}; {r.seconds:.0f} s")
     kinds = Counter(v for v, _, _ in r.failures)
