@@ -105,7 +105,7 @@ def measure(frames: list[Frame], params: dict, repeats: int = 1, old: bool = Fal
     }
 
 
-_STAGES = ("projection", "layout", "refine", "fit", "serialize", "parse", "predict", "sampling")
+_STAGES = ("projection", "layout", "refine", "fit", "residual", "serialize", "parse", "predict", "sampling")
 
 
 def _row(label: str, r: dict[str, float]) -> str:
