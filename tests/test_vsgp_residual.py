@@ -111,24 +111,37 @@ def test_decode_settings_do_not_change_a_residual_payload(tunnel):
     assert np.array_equal(base, other)
 
 
-def test_pack_and_unpack_agree_exactly():
-    sensor = get_sensor("vlp16")
-    rng = np.random.default_rng(0)
+def _random_slots(sensor, rng) -> Slots:
     counts = np.zeros(sensor.n_rays, np.int64)
     counts[rng.choice(sensor.n_rays, 5000, replace=False)] = rng.integers(1, MAX_SLOTS + 1, 5000)
     cell = np.repeat(np.arange(sensor.n_rays), counts)
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
     rank = np.arange(len(cell)) - np.repeat(starts, counts)
-    truth = rng.uniform(sensor.min_range, sensor.max_range, len(cell))
-    prediction = np.clip(truth + rng.normal(0, 0.3, len(cell)), sensor.min_range, sensor.max_range)
-    data, out = pack_residuals(Slots(counts, cell, rank, truth), prediction, 0.25, sensor)
+    return Slots(counts, cell, rank, rng.uniform(sensor.min_range, sensor.max_range, len(cell)))
+
+
+@pytest.mark.parametrize("absolute", [False, True])
+def test_pack_and_unpack_agree_exactly(absolute):
+    """Residuals to a close prediction of random ranges compress better than the ranges; ranges
+    that repeat along the scan, against a prediction that misses them at random, the other way
+    round: the encoder sends whichever is smaller, and both decode within TAU."""
+    sensor = get_sensor("vlp16")
+    rng = np.random.default_rng(0)
+    slots = _random_slots(sensor, rng)
+    if absolute:
+        slots.ranges = np.full(len(slots.cell), 7.3)
+        prediction = rng.uniform(sensor.min_range, sensor.max_range, len(slots.cell))
+    else:
+        prediction = np.clip(slots.ranges + rng.normal(0, 0.3, len(slots.cell)), sensor.min_range, sensor.max_range)
+    data, out = pack_residuals(slots, prediction, 0.25, sensor)
     res = unpack_residuals(data, sensor)
-    assert np.array_equal(res.slots.counts, counts) and np.array_equal(res.slots.rank, rank)
+    assert res.absolute == absolute
+    assert np.array_equal(res.slots.counts, slots.counts) and np.array_equal(res.slots.rank, slots.rank)
     assert res.q == pytest.approx(0.5) and res.tau == pytest.approx(0.25)
     decoded = prediction.copy()
-    decoded[res.coded] += res.k * res.q
+    decoded[res.coded] = (0.0 if absolute else decoded[res.coded]) + res.k * res.q
     assert np.allclose(np.clip(decoded, sensor.min_range, sensor.max_range), out)
-    assert np.abs(out - truth).max() <= 0.25 + 1e-9
+    assert np.abs(out - slots.ranges).max() <= 0.25 + 1e-9
 
 
 def test_the_step_keeps_every_residual_in_16_bits():
@@ -164,8 +177,8 @@ def test_corrupt_residual_sections_raise_payload_error(tunnel):
     p = Payload.from_bytes(data)
     n = p.meta["residual"]
     gp, section = p.body[:-n], p.body[-n:]
-    head = struct.Struct("<ff4I")
-    tau, q, *lens = head.unpack_from(section)
+    head = struct.Struct("<ffB4I")
+    tau, q, mode, *lens = head.unpack_from(section)
     flipped = bytearray(section)
     flipped[head.size + 3] ^= 0xFF
     import lzma
@@ -174,16 +187,17 @@ def test_corrupt_residual_sections_raise_payload_error(tunnel):
     counts = lzma.compress(b"\x03" * occupied, format=lzma.FORMAT_RAW, filters=[{"id": lzma.FILTER_LZMA2}])
     parts = np.cumsum([head.size, *lens])
     occ, bits, values = section[parts[0] : parts[1]], section[parts[2] : parts[3]], section[parts[3] :]
-    three_extra = head.pack(tau, q, lens[0], len(counts), lens[2], lens[3]) + occ + counts + bits + values
+    three_extra = head.pack(tau, q, mode, lens[0], len(counts), lens[2], lens[3]) + occ + counts + bits + values
     cases = [
         _with(data, gp + section[:-3], residual=n - 3),  # truncated section
         _with(data, residual=0),
         _with(data, residual=len(p.body) + 1),
         _with(data, residual=-5),
         _with(data, residual="12"),
-        _with(data, gp + head.pack(tau, q, lens[0] + 1, *lens[1:]) + section[head.size :]),  # lengths disagree
-        _with(data, gp + head.pack(math.nan, q, *lens) + section[head.size :]),
-        _with(data, gp + head.pack(tau, -1.0, *lens) + section[head.size :]),
+        _with(data, gp + head.pack(tau, q, mode, lens[0] + 1, *lens[1:]) + section[head.size :]),  # lengths disagree
+        _with(data, gp + head.pack(math.nan, q, mode, *lens) + section[head.size :]),
+        _with(data, gp + head.pack(tau, -1.0, mode, *lens) + section[head.size :]),
+        _with(data, gp + head.pack(tau, q, 2, *lens) + section[head.size :]),  # no such value mode
         _with(data, gp + bytes(flipped)),
         _with(data, gp + three_extra, residual=len(three_extra)),  # a cell with 4 returns
     ]

@@ -346,7 +346,9 @@ def reconstruct_residual(
     pred = predict_grid(body, sensor, DecodeConfig(), device, timings)
     t1 = time.perf_counter()
     rows, cols = np.divmod(res.slots.cell, sensor.n_azimuth)
-    ranges = apply_residuals(clamp_prediction(pred.ranges[rows, cols], sensor), res.coded, res.k, res.q, sensor)
+    ranges = apply_residuals(
+        clamp_prediction(pred.ranges[rows, cols], sensor), res.coded, res.k, res.q, sensor, res.absolute
+    )
     pts = grid_points(pred, body, sensor, rows, cols, ranges, slot_shift(res.slots))
     if timings is not None:
         timings["sampling"] = time.perf_counter() - t1

@@ -19,7 +19,12 @@ the sensor's own grid) and sends, after the GP body:
 - ``coded``: one bit per slot: is the GP's range at the cell off by more than ``TAU``;
 - ``values``: for each coded slot ``k = round((r - r_gp) / q)`` with ``q = 2 TAU``, zigzag u16, as
   two byte planes. A coded return is then decoded within ``q / 2 = TAU`` too: the layer is a
-  dead-zone quantizer of the GP's residual, and ``TAU`` bounds every kept return's error.
+  dead-zone quantizer of the GP's residual, and ``TAU`` bounds every kept return's error. Or,
+  when it compresses smaller (one flag, the encoder tries both), the coded ranges themselves,
+  ``k = round(r / q)``: where the surface misses many returns by metres (outdoors) LZMA finds
+  the repeats along a beam in the ranges better than in the residuals (KITTI 00 / Ouster at
+  ``TAU`` 0.5: 9.1 / 11.4 kB against 10.0 / 14.3 kB), and on the tunnel it is the other way
+  round (0.5 vs 1.0 kB at ``TAU`` 0.1) †.
 
 ``q = 2 TAU`` is the measured best of ``q`` = TAU/5, TAU/2, TAU, 2 TAU on KITTI 00 frame 0 and
 the Ouster frame (docs/vsgp.md, "Outdoors"): a finer step spends more bytes on the few coded
@@ -49,6 +54,7 @@ from .grid import phases_of
 
 __all__ = [
     "MAX_SLOTS",
+    "VALUE_MODES",
     "Slots",
     "ResidualSection",
     "scan_slots",
@@ -65,7 +71,9 @@ MAX_SLOTS = 3
 #: ``|k| <= 32,767`` must hold for every return in the sensor's range window: ``q`` is at least
 #: this share of the sensor's max range (0.2 mm at 120 m, far below any useful ``TAU``).
 _MIN_STEP_SHARE = 2.0 / 65000.0
-_HEAD = struct.Struct("<ff4I")
+_HEAD = struct.Struct("<ffB4I")  # TAU, q, value mode, four section lengths
+#: How the coded slots' values are sent: residuals to the GP's range, or the ranges themselves.
+VALUE_MODES = ("residual", "absolute")
 _LZMA = [{"id": lzma.FILTER_LZMA2, "preset": 9, "pb": 0, "nice_len": 128, "dict_size": 1 << 22}]
 _LZMA_DEC = [{"id": lzma.FILTER_LZMA2, "dict_size": 1 << 22}]
 _SECTIONS = ("occupancy", "counts", "slot bits", "values")
@@ -90,6 +98,7 @@ class ResidualSection:
     k: np.ndarray  # (coded,) int64 quantized residuals
     tau: float
     q: float
+    absolute: bool  # k codes the range itself, not the residual to the prediction
 
 
 def scan_slots(points: np.ndarray, sensor: SensorModel, phase_codes: np.ndarray) -> Slots:
@@ -141,12 +150,15 @@ def clamp_prediction(ranges: np.ndarray, sensor: SensorModel) -> np.ndarray:
 
 
 def apply_residuals(
-    prediction: np.ndarray, coded: np.ndarray, k: np.ndarray, q: float, sensor: SensorModel
+    prediction: np.ndarray, coded: np.ndarray, k: np.ndarray, q: float, sensor: SensorModel, absolute: bool = False
 ) -> np.ndarray:
     """The decoded range of every slot (encoder and decoder both call this: they agree), in the
     sensor's range window -- where every return it encodes lies, so the clip only cuts error."""
     out = np.array(prediction, dtype=np.float64)
-    out[coded] += k.astype(np.float64) * q
+    if absolute:
+        out[coded] = k.astype(np.float64) * q
+    else:
+        out[coded] += k.astype(np.float64) * q
     return np.clip(out, sensor.min_range, sensor.max_range)
 
 
@@ -171,27 +183,37 @@ def pack_residuals(slots: Slots, prediction: np.ndarray, tau: float, sensor: Sen
     q = residual_step(tau, sensor.max_range)
     err = slots.ranges - prediction
     coded = ~(np.abs(err) <= tau)
-    k = np.rint(err[coded] / q).astype(np.int64)
-    zigzag = ((k << 1) ^ (k >> 63)).astype("<u2")
+    k_res = np.rint(err[coded] / q).astype(np.int64)
+    k_abs = np.rint(slots.ranges[coded] / q).astype(np.int64)
     occupied = slots.counts > 0
-    sections = [
-        np.packbits(occupied).tobytes(),
-        (slots.counts[occupied] - 1).astype(np.uint8).tobytes(),
-        np.packbits(coded).tobytes(),
-        zigzag.view(np.uint8).reshape(-1, 2).T.tobytes(),  # low bytes, then high bytes
+    squeezed = [
+        _squeeze(np.packbits(occupied).tobytes()),
+        _squeeze((slots.counts[occupied] - 1).astype(np.uint8).tobytes()),
+        _squeeze(np.packbits(coded).tobytes()),
     ]
-    squeezed = [_squeeze(s) for s in sections]
-    head = _HEAD.pack(tau, q, *(len(s) for s in squeezed))
-    return head + b"".join(squeezed), apply_residuals(prediction, coded, k, q, sensor)
+    by_residual, by_range = _squeeze(_planes((k_res << 1) ^ (k_res >> 63))), _squeeze(_planes(k_abs))
+    absolute = len(by_range) < len(by_residual)
+    squeezed.append(by_range if absolute else by_residual)
+    head = _HEAD.pack(tau, q, int(absolute), *(len(s) for s in squeezed))
+    k = k_abs if absolute else k_res
+    return head + b"".join(squeezed), apply_residuals(prediction, coded, k, q, sensor, absolute)
+
+
+def _planes(values: np.ndarray) -> bytes:
+    """u16 values as two byte planes (low bytes, then high bytes): LZMA sees the slowly varying
+    high bytes as long runs."""
+    return np.asarray(values).astype("<u2").view(np.uint8).reshape(-1, 2).T.tobytes()
 
 
 def unpack_residuals(data: bytes, sensor: SensorModel) -> ResidualSection:
     """A residual section for ``sensor``'s grid, every inconsistency a :class:`PayloadError`."""
     if len(data) < _HEAD.size:
         raise PayloadError("vsgp payload: residual section truncated")
-    tau, q, *lens = _HEAD.unpack_from(data)
+    tau, q, mode, *lens = _HEAD.unpack_from(data)
     if not (math.isfinite(tau) and math.isfinite(q) and tau > 0 and q > 0):
         raise PayloadError("vsgp payload: residual threshold or step invalid")
+    if mode >= len(VALUE_MODES):
+        raise PayloadError(f"vsgp payload: unknown residual value mode {mode}")
     if _HEAD.size + sum(lens) != len(data):
         raise PayloadError(f"vsgp payload: residual sections take {_HEAD.size + sum(lens)} bytes, got {len(data)}")
     offs = np.cumsum([_HEAD.size, *lens])
@@ -210,6 +232,8 @@ def unpack_residuals(data: bytes, sensor: SensorModel) -> ResidualSection:
     coded = coded.astype(bool)
     n_coded = int(coded.sum())
     planes = np.frombuffer(_inflate(part[3], 2 * n_coded, _SECTIONS[3]), np.uint8).reshape(2, n_coded)
-    zigzag = np.ascontiguousarray(planes.T).view("<u2").ravel().astype(np.int64)
-    k = (zigzag >> 1) ^ -(zigzag & 1)
-    return ResidualSection(slots, coded, k, float(tau), float(q))
+    k = np.ascontiguousarray(planes.T).view("<u2").ravel().astype(np.int64)
+    absolute = VALUE_MODES[mode] == "absolute"
+    if not absolute:
+        k = (k >> 1) ^ -(k & 1)  # zigzag
+    return ResidualSection(slots, coded, k, float(tau), float(q), absolute)
