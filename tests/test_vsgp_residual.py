@@ -87,7 +87,7 @@ def test_rotating_a_scan_moves_the_residual_layers_coverage_by_at_most_001(name)
 def test_on_a_smooth_tunnel_the_gp_predictor_pays_for_itself(tunnel):
     """The control (``predictor=none``: no surface, every range coded on its own) against the
     GP's prediction at the same threshold: on the paper's kind of scene the GP's payload is
-    smaller *and* closer (measured 4.7 vs 6.8 kB, 2.0 vs 2.9 cm)."""
+    smaller *and* closer (measured 4.7 vs 6.7 kB, 2.0 vs 2.9 cm)."""
     gp_data, gp_pts = _round_trip(tunnel, residual=0.05, body="q16z")
     ctl_data, ctl_pts = _round_trip(tunnel, residual=0.05, body="q16z", predictor="none")
     assert len(gp_data) < 0.85 * len(ctl_data)
