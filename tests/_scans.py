@@ -9,9 +9,11 @@ camera's. Each is a parameter here, so a test states which property it relies on
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-from lwbench import SensorModel, get_sensor
+from lwbench import Frame, SensorModel, get_sensor
 
 
 def spinning_scan(
@@ -39,8 +41,9 @@ def spinning_scan(
     """
     s = get_sensor(sensor) if isinstance(sensor, str) else sensor
     rng = np.random.default_rng(seed)
-    el = np.radians(np.asarray(s.elevations_deg)[:, None] + rng.normal(0, 1, (s.n_beams, s.n_azimuth))
-                    * elevation_noise_deg)
+    el = np.radians(
+        np.asarray(s.elevations_deg)[:, None] + rng.normal(0, 1, (s.n_beams, s.n_azimuth)) * elevation_noise_deg
+    )
     az_deg = start_deg + np.arange(s.n_azimuth) * s.azimuth_step_deg
     offsets = np.zeros(s.n_beams) if azimuth_offsets_deg is None else np.asarray(azimuth_offsets_deg)
     az = np.radians(az_deg[None, :] + offsets[:, None])
@@ -111,7 +114,11 @@ def street_scan(
 
 
 def rotating_2d_laser_scan(
-    *, seed: int = 0, scan_step_deg: float = 0.25, turn_step_deg: float = 0.5, offset_m: float = 0.05,
+    *,
+    seed: int = 0,
+    scan_step_deg: float = 0.25,
+    turn_step_deg: float = 0.5,
+    offset_m: float = 0.05,
     half_extent: tuple[float, float, float] = (6.0, 4.0, 2.0),
 ) -> np.ndarray:
     """A 2-D laser scanner (270 deg in its plane, ``scan_step_deg`` apart, a Hokuyo's) turned about
@@ -122,8 +129,12 @@ def rotating_2d_laser_scan(
     beta = np.radians(np.arange(-135.0, 135.0 + 1e-9, scan_step_deg))  # in-plane angle from up
     phi = np.radians(np.arange(0.0, 180.0, turn_step_deg))[:, None]  # turn of the plane
     d_plane = np.stack([np.sin(beta), np.cos(beta)], axis=-1)  # (horizontal along the plane, up)
-    dirs = np.stack(np.broadcast_arrays(d_plane[None, :, 0] * np.cos(phi), d_plane[None, :, 0] * np.sin(phi),
-                                        d_plane[None, :, 1] + 0 * phi), axis=-1).reshape(-1, 3)
+    dirs = np.stack(
+        np.broadcast_arrays(
+            d_plane[None, :, 0] * np.cos(phi), d_plane[None, :, 0] * np.sin(phi), d_plane[None, :, 1] + 0 * phi
+        ),
+        axis=-1,
+    ).reshape(-1, 3)
     centre = np.stack(np.broadcast_arrays(offset_m * -np.sin(phi), offset_m * np.cos(phi), 0 * phi), axis=-1)
     centre = np.broadcast_to(centre, (len(phi), len(beta), 3)).reshape(-1, 3)
     half = np.asarray(half_extent)
@@ -152,3 +163,12 @@ def tilted(points: np.ndarray, deg: float) -> np.ndarray:
     a = np.radians(deg)
     rot = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
     return (points.astype(np.float64) @ rot.T).astype(np.float32)
+
+
+def rotated(frame: Frame, angle: float) -> Frame:
+    """The scan turned by ``angle`` about the sensor's axis (z); its sensor model, ring labels
+    and intensities unchanged: the "rotate a scan by a fraction of a cell" check."""
+    c, s = math.cos(angle), math.sin(angle)
+    turn = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    points = (frame.points.astype(np.float64) @ turn.T).astype(np.float32)
+    return Frame(points, frame.sensor, index=frame.index, intensity=frame.intensity, ring=frame.ring)

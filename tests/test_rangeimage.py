@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _scans import rotated
 from lwbench_plugins.rangeimage import MAX_RETURNS, RangeImageCodec, pack_image, unpack_image
 from lwbench_plugins.rangeimage.bodies import IMAGE_BODIES, _jxl_shape
 from lwbench_plugins.rangeimage.grid import coherence, elevation_units
@@ -65,10 +66,6 @@ def sparse_room(seed: int, sensor: SensorModel | None = None) -> Frame:
     return room_scan(sensor or get_sensor("vlp16"), seed=seed, dropout=0.75)
 
 
-def rotated(frame: Frame, angle: float) -> Frame:
-    c, s = math.cos(angle), math.sin(angle)
-    rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    return Frame((frame.points.astype(np.float64) @ rot.T).astype(np.float32), frame.sensor)
 
 
 def jittered_scan(seed: int = 0, sensor: str = "vlp16") -> Frame:

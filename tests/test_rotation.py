@@ -16,10 +16,9 @@ under the fast suite's share.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
+from _scans import rotated
 from lwbench_metrics.ranges import RangeMetric
 
 from lwbench import Frame
@@ -39,13 +38,6 @@ def kit_scans() -> dict[str, Frame]:
     return {**check_frames(), "tunnel": tunnel_scan(seed=2)}
 
 
-def rotated(frame: Frame, angle: float) -> Frame:
-    """The scan turned by ``angle`` about the sensor's axis (z); its sensor model, ring labels
-    and intensities unchanged."""
-    c, s = math.cos(angle), math.sin(angle)
-    turn = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    points = (frame.points.astype(np.float64) @ turn.T).astype(np.float32)
-    return Frame(points, frame.sensor, index=frame.index, intensity=frame.intensity, ring=frame.ring)
 
 
 def coverage(codec: str, frame: Frame) -> float:

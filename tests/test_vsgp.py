@@ -10,6 +10,7 @@ import struct
 import numpy as np
 import pytest
 import torch
+from _scans import rotated
 from lwbench_plugins.vsgp import VSGPCodec
 from lwbench_plugins.vsgp.decoder import WORK_BUDGET, DecodeConfig, plan_decode, reconstruct
 from lwbench_plugins.vsgp.encoder import FitConfig, fit_scan
@@ -42,10 +43,6 @@ def coverage(frame: Frame, points: np.ndarray) -> float:
     return float(RangeMetric().compute(ev)["coverage"] or 0.0)
 
 
-def rotated(frame: Frame, angle: float) -> Frame:
-    c, s = math.cos(angle), math.sin(angle)
-    rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    return Frame((frame.points.astype(np.float64) @ rot.T).astype(np.float32), frame.sensor, index=frame.index)
 
 
 def round_trip(frame: Frame, **params) -> tuple[bytes, np.ndarray]:

@@ -8,6 +8,7 @@ import struct
 
 import numpy as np
 import pytest
+from _scans import rotated
 from lwbench_plugins.vsgp import VSGPCodec
 from lwbench_plugins.vsgp.residuals import (
     MAX_SLOTS,
@@ -20,12 +21,6 @@ from lwbench_plugins.vsgp.residuals import (
 
 from lwbench import Frame, ParameterError, Payload, PayloadError, get_sensor
 from lwbench.testing import check_frames, tunnel_scan
-
-
-def rotated(frame: Frame, angle: float) -> Frame:
-    c, s = math.cos(angle), math.sin(angle)
-    rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    return Frame((frame.points.astype(np.float64) @ rot.T).astype(np.float32), frame.sensor, index=frame.index)
 
 
 def _round_trip(frame: Frame, **params) -> tuple[bytes, np.ndarray]:
