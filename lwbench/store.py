@@ -16,6 +16,7 @@ import json
 import math
 import platform
 import sqlite3
+import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
@@ -204,6 +205,31 @@ def _schema_version(conn: sqlite3.Connection) -> int | None:
         return None
 
 
+#: How long opening a store waits for another process that holds it (SQLite's busy timeout).
+BUSY_TIMEOUT_S = 30.0
+
+
+def _connect_writable(path: Path) -> sqlite3.Connection:
+    """A connection in WAL mode. Switching a database to WAL takes an exclusive lock, and SQLite
+    answers "database is locked" at once -- without waiting the busy timeout -- when another
+    connection holds the file at that moment: two runs started together on a new store hit it
+    (31 of 150 three-process races here). So the switch is retried until the busy timeout, and
+    skipped when the file is already in WAL mode (reading the mode takes no lock)."""
+    conn = sqlite3.connect(str(path), timeout=BUSY_TIMEOUT_S)
+    deadline = time.monotonic() + BUSY_TIMEOUT_S
+    while True:
+        try:
+            if conn.execute("PRAGMA journal_mode").fetchone()[0].lower() != "wal":
+                conn.execute("PRAGMA journal_mode=WAL")
+            conn.execute("PRAGMA synchronous=NORMAL")
+            return conn
+        except sqlite3.OperationalError as exc:
+            if "locked" not in str(exc) and "busy" not in str(exc) or time.monotonic() > deadline:
+                conn.close()
+                raise
+            time.sleep(0.02)
+
+
 def _connect_readonly(path: Path) -> sqlite3.Connection:
     """A connection that cannot write (``mode=ro``). A WAL database in a folder we may not write
     to cannot be opened so (SQLite needs its ``-shm`` file); it is then read as ``immutable``,
@@ -279,9 +305,7 @@ class ResultStore:
                 self.conn = _connect_readonly(self.path)
             else:
                 self.path.parent.mkdir(parents=True, exist_ok=True)
-                self.conn = sqlite3.connect(str(self.path), timeout=30.0)
-                self.conn.execute("PRAGMA journal_mode=WAL")
-                self.conn.execute("PRAGMA synchronous=NORMAL")
+                self.conn = _connect_writable(self.path)
         except (sqlite3.Error, OSError) as exc:
             raise StoreError(f"cannot open results store {self.path}: {exc}") from None
         version = _schema_version(self.conn) if exists else SCHEMA_VERSION
