@@ -50,6 +50,7 @@ from lwbench.metric import (
     MetricId,
     SequenceEvaluation,
     SequenceMetric,
+    SequenceStep,
 )
 from lwbench.noise_floor import (
     GAUSSIAN_ENTROPY_BITS,
@@ -62,7 +63,7 @@ from lwbench.noise_floor import (
     scan_floor,
     step_for_rmsd,
 )
-from lwbench.occupancy import OCCUPANCY_PARAMS, OccupancyMap, compare_occupancy, occupied_voxels
+from lwbench.occupancy import OCCUPANCY_PARAMS, OccupancyMap, compare_occupancy, occupancy_maps, occupied_voxels
 from lwbench.parallel import thread_budget
 from lwbench.params import Param
 from lwbench.payload import Payload
@@ -128,6 +129,7 @@ __all__ = [
     "MissingDependencyError",
     "OCCUPANCY_PARAMS",
     "OccupancyMap",
+    "occupancy_maps",
     "occupied_voxels",
     "open_dataset",
     "pack_points",
@@ -151,6 +153,7 @@ __all__ = [
     "SensorCatalog",
     "SensorModel",
     "SequenceEvaluation",
+    "SequenceStep",
     "SequenceMetric",
     "StoreError",
     "thread_budget",

@@ -60,6 +60,12 @@ class Dataset(abc.ABC):
         in a map made on another day does."""
         return [list(range(len(self)))]
 
+    def pose(self, index: int):
+        """Ground-truth pose (sensor -> world, 4x4) of frame ``index``, or ``None``. Sequence
+        metrics read every pose before any scan: a loader that knows its poses without reading the
+        scan (a poses file, a simulator's path) overrides this; the default reads the frame."""
+        return self[index].pose
+
     def __getitem__(self, index: int) -> Frame:
         if not -len(self) <= index < len(self):
             raise IndexError(f"{self.name}: frame {index} out of range (0..{len(self) - 1})")

@@ -253,6 +253,12 @@ class _ScanFiles(Dataset):
         scan = read_kitti_bin(path, self.config["fields"], drop_non_returns=False)
         return ScanArrays(scan.points, scan.intensity, scan.ring, read_time_sidecar(sidecar, len(scan.points))).finite()
 
+    def pose(self, index: int) -> np.ndarray | None:
+        """From the poses file: no scan is read."""
+        if self.poses is None:
+            return None
+        return self.poses[index % len(self)]
+
     def frame(self, index: int) -> Frame:
         scan = self._read_scan(self.files[index])
         self._check_same_sensor(index, scan)

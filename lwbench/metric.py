@@ -17,7 +17,7 @@ recomputes instead of being served from the cache, and rows scored two ways are 
 from __future__ import annotations
 
 import abc
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
@@ -39,6 +39,7 @@ __all__ = [
     "MetricId",
     "SequenceEvaluation",
     "SequenceMetric",
+    "SequenceStep",
 ]
 
 MetricValues = dict[str, float | None]
@@ -154,28 +155,135 @@ class Evaluation:
         return self._cache[key]
 
 
-@dataclass
-class SequenceEvaluation:
-    """One codec configuration over a whole sequence: originals, decoded scans, poses.
+@dataclass(frozen=True)
+class SequenceStep:
+    """One frame of a pass over a sequence: what a streaming sequence metric consumes.
 
-    :meth:`cached` shares what depends only on the originals (ground truth, the original map)
-    between the configurations of a run: the cache belongs to the run's sequence stage, which
-    creates one per dataset and frame selection.
+    ``position`` is the frame's place among the evaluated frames (0..n-1), ``index`` its index in
+    the dataset; ``decoded`` the codec's decoded cloud (decoded afresh from the stored payload),
+    ``pose`` the ground-truth sensor->world pose. The original scan is read only when asked for
+    (:attr:`original`): most passes never need it, and on a simulator it costs a ray cast."""
+
+    position: int
+    index: int
+    decoded: np.ndarray
+    pose: np.ndarray
+    _dataset: Dataset = field(repr=False, compare=False)
+
+    @property
+    def original(self) -> Frame:
+        return self._dataset[self.index]
+
+
+#: Reports a pass's progress: (what the pass is, frames done, frames in the pass).
+StepReporter = Callable[[str, int, int], None]
+
+
+class DecodedScans(Sequence):
+    """``seq.decoded``: the decoded clouds as a sequence that holds none of them -- each access
+    decodes that frame afresh. Kept for metrics written before :meth:`SequenceEvaluation.steps`;
+    a metric that copies it into a list holds the whole drive (the kit's memory check fails it)."""
+
+    def __init__(self, source: Callable[[int], np.ndarray], n: int) -> None:
+        self._source, self._n = source, n
+
+    def __len__(self) -> int:
+        return self._n
+
+    def __getitem__(self, i):  # type: ignore[override]
+        if isinstance(i, slice):
+            return [self._source(k) for k in range(*i.indices(self._n))]
+        if not -self._n <= i < self._n:
+            raise IndexError(f"decoded scan {i} out of range (0..{self._n - 1})")
+        return self._source(i % self._n)
+
+
+class SequenceEvaluation:
+    """One codec configuration over a whole sequence, read as a stream (docs/plugins.md).
+
+    Nothing of the drive is held: :meth:`steps` is one pass over the frames in order, each
+    decoded cloud decoded from its stored payload as the pass reaches it, the original read only
+    when a step asks. A metric that needs two passes (a map from every scan, then tracking each
+    scan against it) calls :meth:`steps` twice. :meth:`poses` are the ground-truth poses (small:
+    128 bytes a frame); :meth:`cached` shares what depends only on the originals (ground truth,
+    the original map) between the configurations of a run.
+
+    ``decoded`` is either a list of clouds (tests, small drives) or a function position -> cloud.
     """
 
-    dataset: Dataset
-    frame_indices: list[int]
-    decoded: list[np.ndarray]
-    codec_name: str
-    params: dict[str, Any]
-    seed: int = 0
-    _cache: dict[str, Any] = field(default_factory=dict, repr=False)
+    def __init__(
+        self,
+        dataset: Dataset,
+        frame_indices: list[int],
+        decoded: Sequence[np.ndarray] | Callable[[int], np.ndarray],
+        codec_name: str,
+        params: dict[str, Any],
+        seed: int = 0,
+        _cache: dict[str, Any] | None = None,
+        on_step: StepReporter | None = None,
+    ) -> None:
+        self.dataset = dataset
+        self.frame_indices = list(frame_indices)
+        self.codec_name, self.params, self.seed = codec_name, params, seed
+        self._cache: dict[str, Any] = {} if _cache is None else _cache
+        self.on_step = on_step
+        if callable(decoded):
+            self._decode = decoded
+        else:
+            clouds = list(decoded)
+            if len(clouds) != len(self.frame_indices):
+                raise ValueError(f"{len(clouds)} decoded clouds for {len(self.frame_indices)} frames")
+            self._decode = clouds.__getitem__
+        self.decoded = DecodedScans(self._decode, len(self.frame_indices))
+
+    def __len__(self) -> int:
+        return len(self.frame_indices)
 
     def original(self, i: int) -> Frame:
+        """The original frame at position ``i`` (read from the dataset each time)."""
         return self.dataset[self.frame_indices[i]]
 
+    def poses(self) -> np.ndarray:
+        """Ground-truth poses ``(n, 4, 4)`` of the evaluated frames (:meth:`Dataset.pose`)."""
+
+        def read() -> np.ndarray:
+            poses = [self.dataset.pose(i) for i in self.frame_indices]
+            if any(p is None for p in poses):
+                raise ValueError(f"{self.dataset.name}: sequence metrics need ground-truth poses on every frame")
+            return np.stack(poses).astype(np.float64)
+
+        return self.cached("poses", read)
+
+    def steps(self, positions: Sequence[int] | None = None, what: str = "pass") -> Iterator[SequenceStep]:
+        """One pass over ``positions`` (default: every frame), in order, decoding as it goes.
+        ``what`` names the pass in the run's progress (``map``, ``tracking``)."""
+        chosen = range(len(self)) if positions is None else list(positions)
+        poses = self.poses()
+        n = len(chosen)
+        for k, p in enumerate(chosen):
+            if self.on_step is not None:
+                self.on_step(what, k, n)
+            yield SequenceStep(p, self.frame_indices[p], self._decode(p), poses[p], self.dataset)
+        if self.on_step is not None:
+            self.on_step(what, n, n)
+
+    def originals(self, positions: Sequence[int] | None = None, what: str = "originals") -> Iterator[SequenceStep]:
+        """A pass over the *original* scans (``decoded`` is the original's points): what the
+        metrics compute once per run on the originals goes through the same code as a codec's."""
+        chosen = range(len(self)) if positions is None else list(positions)
+        poses = self.poses()
+        n = len(chosen)
+        for k, p in enumerate(chosen):
+            if self.on_step is not None:
+                self.on_step(what, k, n)
+            frame = self.original(p)
+            yield SequenceStep(p, self.frame_indices[p], frame.points, poses[p], self.dataset)
+        if self.on_step is not None:
+            self.on_step(what, n, n)
+
     def cached(self, key: str, compute: Callable[[], Any]) -> Any:
-        """An intermediate that depends only on the original scans (and ``key``)."""
+        """An intermediate that depends only on the original scans (and ``key``). Values must
+        pickle: a run computes each once and hands it to the workers that need it."""
         if key not in self._cache:
             self._cache[key] = compute()
         return self._cache[key]
@@ -222,7 +330,14 @@ class FrameMetric(_Metric, abc.ABC):
 
 
 class SequenceMetric(_Metric, abc.ABC):
-    """Computes metric ids over a sequence (needs ground-truth poses).
+    """Computes metric ids over a sequence (needs ground-truth poses), as a stream.
+
+    ``compute`` reads the sequence through :meth:`SequenceEvaluation.steps` -- one pass per call,
+    frames in order -- and keeps bounded state: what grows with the area covered (a voxel map),
+    never what grows with the number of frames (a list of scans). A run of 5,000 scans must fit
+    on a laptop; ``lwbench.testing`` checks a metric's memory does not grow with frames.
+    Each (configuration, metric) is one task of the run's sequence stage, run on ``--workers``
+    processes or Ray like the frames.
 
     ``in_default_run``: whether a run with poses computes it unless told otherwise. A metric that
     is slow for what most runs ask (KISS-ICP: +30 % on the README's main job) declares ``False`` and

@@ -25,7 +25,8 @@ Original and decoded maps are built by the same procedure, so identical clouds s
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -33,7 +34,7 @@ import numpy as np
 from lwbench.geometry import rotate, voxel_centres, voxel_key_range_x, voxel_keys
 from lwbench.sensor import SensorModel
 
-__all__ = ["OCCUPANCY_PARAMS", "OccupancyMap", "occupied_voxels", "compare_occupancy"]
+__all__ = ["OCCUPANCY_PARAMS", "OccupancyMap", "occupancy_maps", "occupied_voxels", "compare_occupancy"]
 
 OCCUPANCY_PARAMS: dict[str, Any] = {
     "resolutions": (0.2, 0.05),  # m; the unsuffixed ids use the first
@@ -115,6 +116,79 @@ def _misses(cand: np.ndarray, rays: _ScanRays, sensor: SensorModel, voxel: float
     return idx[hk[pos] != cand[idx]]  # occupied wins within a scan
 
 
+class _KeyCounts:
+    """Sorted unique keys and how often each was added, one scan's keys at a time; memory grows
+    with the distinct keys (the area), not with the scans (folds every ``flush`` pending keys)."""
+
+    def __init__(self, flush: int = 4_000_000) -> None:
+        self.keys = np.zeros(0, dtype=np.int64)
+        self.counts = np.zeros(0, dtype=np.int64)
+        self._pending: list[np.ndarray] = []
+        self._n, self._flush = 0, flush
+
+    def add(self, keys: np.ndarray) -> None:
+        if len(keys):
+            self._pending.append(keys)
+            self._n += len(keys)
+            if self._n >= self._flush:
+                self.fold()
+
+    def fold(self) -> tuple[np.ndarray, np.ndarray]:
+        if self._pending:
+            keys, rows = np.unique(np.concatenate([self.keys, *self._pending]), return_inverse=True)
+            weights = np.concatenate([self.counts, np.ones(self._n, dtype=np.int64)])
+            self.keys = keys
+            self.counts = np.bincount(rows, weights=weights, minlength=len(keys)).astype(np.int64)
+            self._pending, self._n = [], 0
+        return self.keys, self.counts
+
+
+ScanPasses = Callable[[str], Iterable[tuple[np.ndarray, np.ndarray]]]
+
+
+def occupancy_maps(
+    scans: ScanPasses,
+    sensor: SensorModel,
+    resolutions: tuple[float, ...] = OCCUPANCY_PARAMS["resolutions"],
+    l_hit: float = OCCUPANCY_PARAMS["l_hit"],
+    l_miss: float = OCCUPANCY_PARAMS["l_miss"],
+    max_range: float = OCCUPANCY_PARAMS["max_range"],
+) -> dict[float, np.ndarray]:
+    """:func:`occupied_voxels` at every resolution, reading the sequence as a stream.
+
+    ``scans(what)`` is one pass over ``(scan, pose)`` pairs in order (a generator: none is
+    kept). Two passes: the first counts each voxel's hits (every voxel ever hit is a candidate),
+    the second counts, per scan, the candidates its rays pass through -- what one scan's rays
+    say depends on no other scan, so nothing of a scan outlives its turn. Memory follows the
+    candidate voxels (the area covered), not the number of scans. Exact: integer counts.
+    """
+    counts = {v: _KeyCounts() for v in resolutions}
+    for scan, pose in scans("occupancy hits"):
+        pose = np.asarray(pose, dtype=np.float64)
+        for v in resolutions:
+            counts[v].add(_hit_keys(scan, pose, v, max_range))
+    cand = {v: counts[v].fold() for v in resolutions}
+    del counts
+    misses = {v: np.zeros(len(cand[v][0]), dtype=np.int64) for v in resolutions}
+    for scan, pose in scans("occupancy free space"):
+        pose = np.asarray(pose, dtype=np.float64)
+        rays = None
+        for v in resolutions:
+            keys = cand[v][0]
+            if len(keys) == 0:
+                continue
+            hk = _hit_keys(scan, pose, v, max_range)
+            rays = _scan_rays(scan, pose, sensor, max_range, hk) if rays is None else replace(rays, hit_keys=hk)
+            if rays is None:
+                break
+            misses[v][_misses(keys, rays, sensor, v)] += 1
+    out = {}
+    for v in resolutions:
+        keys, hits = cand[v]
+        out[v] = keys[hits * l_hit + misses[v] * l_miss > 0]
+    return out
+
+
 def occupied_voxels(
     scans: list[np.ndarray],
     poses: np.ndarray,
@@ -128,20 +202,13 @@ def occupied_voxels(
 
     ``scans`` are in the sensor frame, ``poses`` are sensor->world; ``sensor`` gives the ray
     grid on which each scan's returns are looked up. (:class:`OccupancyMap` builds the same map
-    one scan at a time.)
+    one scan at a time; :func:`occupancy_maps` reads a sequence as a stream.)
     """
     poses = np.asarray(poses, dtype=np.float64)
-    hit_keys = [_hit_keys(s, T, voxel, max_range) for s, T in zip(scans, poses, strict=True)]
-    if not hit_keys or sum(len(h) for h in hit_keys) == 0:
-        return np.zeros(0, dtype=np.int64)
-    cand, hits = np.unique(np.concatenate(hit_keys), return_counts=True)
-    misses = np.zeros(len(cand), dtype=np.int64)
-    for s, T, hk in zip(scans, poses, hit_keys, strict=True):
-        rays = _scan_rays(s, T, sensor, max_range, hk)
-        if rays is not None:
-            misses[_misses(cand, rays, sensor, voxel)] += 1
-    logodds = hits * l_hit + misses * l_miss
-    return cand[logodds > 0]
+    if len(scans) != len(poses):
+        raise ValueError(f"{len(scans)} scans for {len(poses)} poses")
+    maps = occupancy_maps(lambda what: zip(scans, poses, strict=True), sensor, (voxel,), l_hit, l_miss, max_range)
+    return maps[voxel]
 
 
 class OccupancyMap:

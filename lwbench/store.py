@@ -423,6 +423,16 @@ class ResultStore:
         ).fetchone()
         return None if row is None else _unpack_array(row[0])
 
+    def artifact_digest(self, evaluation: str, name: str) -> str | None:
+        """The name of the file an array is kept in beside the store (``None``: not kept as a
+        file, or the file is gone) -- what a worker process reads it by, without the store."""
+        if not self._has_files or self.files is None:
+            return None
+        row = self.conn.execute(
+            "SELECT digest FROM artifact_files WHERE evaluation = ? AND name = ?", (evaluation, name)
+        ).fetchone()
+        return row[0] if row is not None and self.files.path(row[0]).is_file() else None
+
     def rows(self, *, dataset: str | None = None, kind: str | None = None) -> Iterator[ResultRow]:
         cols = [c if c in self._present else f"{_DEFAULTS[c]} AS {c}" for c in _COLUMNS]
         sql = f"SELECT {', '.join(cols)} FROM results"

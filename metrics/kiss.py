@@ -26,6 +26,7 @@ False``): ``lwbench run --metric kiss`` (or a run file's ``metrics = ["kiss"]``)
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from typing import Any
 
 import numpy as np
@@ -78,19 +79,21 @@ def _pipeline(max_range: float, p: dict[str, Any]):
 
 
 def kiss_trajectory(
-    scans: list[np.ndarray], first_pose: np.ndarray, max_range: float, settings: dict[str, Any] = KISS_SETTINGS
+    scans: Iterable[np.ndarray], first_pose: np.ndarray, max_range: float, settings: dict[str, Any] = KISS_SETTINGS
 ) -> np.ndarray | None:
-    """KISS-ICP's poses ``(n, 4, 4)`` for ``scans`` (sensor frame), chained from ``first_pose``;
-    ``None`` when KISS-ICP raises or returns a non-finite pose."""
+    """KISS-ICP's poses ``(n, 4, 4)`` for ``scans`` (sensor frame; one pass, a generator is
+    fine: KISS-ICP's own local map is all that is kept), chained from ``first_pose``; ``None``
+    when KISS-ICP raises or returns a non-finite pose."""
     odometry = _pipeline(max_range, settings)
-    poses = np.empty((len(scans), 4, 4))
+    estimates: list[np.ndarray] = []
     no_times = np.zeros(0)
     try:
-        for k, scan in enumerate(scans):
+        for scan in scans:
             odometry.register_frame(np.asarray(scan, dtype=np.float64).reshape(-1, 3), no_times)
-            poses[k] = odometry.last_pose
+            estimates.append(np.array(odometry.last_pose, dtype=np.float64))
     except (RuntimeError, ValueError, TypeError, IndexError):  # what the pybind11 bindings raise
         return None
+    poses = np.stack(estimates) if estimates else np.zeros((0, 4, 4))
     if not np.isfinite(poses).all():
         return None
     return np.asarray(first_pose, dtype=np.float64) @ poses
@@ -123,10 +126,10 @@ class KissOdometryMetric(SequenceMetric):
     )
 
     def compute(self, seq: SequenceEvaluation) -> dict[str, float | None]:
-        gt, _ = ground_truth(seq)
+        gt = ground_truth(seq)
         drives = split_drives(seq)
-        tracked = drives[1] if drives is not None else list(range(len(seq.decoded)))  # as the odometry metric
-        scans = [seq.decoded[i] for i in tracked]
+        tracked = drives[1] if drives is not None else list(range(len(seq)))  # as the odometry metric
+        scans = (s.decoded for s in seq.steps(tracked, "kiss"))
         max_range = self.config["max_range"] or float(seq.original(tracked[0]).sensor.max_range)
         poses = kiss_trajectory(scans, gt[tracked][0], max_range, self.settings)
         if poses is None:

@@ -27,6 +27,7 @@ frames (the given first pose is left out of the APE statistics; RPE uses every c
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -41,9 +42,11 @@ if TYPE_CHECKING:
 
 __all__ = [
     "ICP_PARAMS",
+    "MapBuilder",
     "TrackingResult",
     "VoxelMap",
     "build_map",
+    "scan_voxels",
     "track_against_map",
     "track_odometry",
     "pose_metrics",
@@ -91,68 +94,121 @@ def _with_normals(pc: o3d.geometry.PointCloud, p: dict[str, Any]) -> o3d.geometr
     return pc
 
 
+def scan_voxels(scan: np.ndarray, pose: np.ndarray, voxel: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One scan placed at ``pose``, per map voxel it touches: (sorted keys, coordinate sums, counts)."""
+    if len(scan) == 0:
+        return np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0, np.int64)
+    w = transform(scan, pose)
+    k, inv, c = np.unique(voxel_keys(w, voxel), return_inverse=True, return_counts=True)
+    sums = np.stack([np.bincount(inv, weights=w[:, j], minlength=len(k)) for j in range(3)], axis=1)
+    return k, sums, c
+
+
+class MapBuilder:
+    """The voxel-centroid map, built one scan at a time: memory grows with the voxels (the area
+    covered), not with the scans.
+
+    Scans wait in a small buffer and are folded into the running sums every ``flush_points``
+    voxel entries. A fold lists the running sums first and then each buffered scan in order, so
+    every voxel's sum is added up in scan order -- bit for bit what one ``bincount`` over all
+    scans gives (``0 + x == x``): the map does not depend on how the drive was cut into folds."""
+
+    def __init__(self, voxel: float, flush_points: int = 2_000_000) -> None:
+        self.voxel, self.flush_points = voxel, flush_points
+        self.keys = np.zeros(0, np.int64)
+        self.sums = np.zeros((0, 3))
+        self.counts = np.zeros(0, np.int64)
+        self._pending: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        self._pending_n = 0
+
+    def add(self, scan: np.ndarray, pose: np.ndarray) -> None:
+        k, sums, c = scan_voxels(scan, pose, self.voxel)
+        if len(k):
+            self._pending.append((k, sums, c))
+            self._pending_n += len(k)
+            if self._pending_n >= self.flush_points:
+                self._fold()
+
+    def _fold(self) -> None:
+        if not self._pending:
+            return
+        parts = [(self.keys, self.sums, self.counts), *self._pending]
+        uniq, rows = np.unique(np.concatenate([p[0] for p in parts]), return_inverse=True)
+        sums_all = np.concatenate([p[1] for p in parts])
+        self.sums = np.stack(
+            [np.bincount(rows, weights=sums_all[:, j], minlength=len(uniq)) for j in range(3)], axis=1
+        )
+        self.counts = np.bincount(rows, weights=np.concatenate([p[2] for p in parts]),
+                                  minlength=len(uniq)).astype(np.int64)
+        self.keys = uniq
+        self._pending, self._pending_n = [], 0
+
+    def finish(self, params: dict[str, Any]) -> VoxelMap:
+        """The map, with normals estimated once on the whole of it."""
+        self._fold()
+        centroids = self.sums / np.maximum(self.counts, 1)[:, None]
+        if len(self.keys):
+            pc = _with_normals(_cloud(centroids), params)
+            normals = np.asarray(pc.normals) if pc.has_normals() else np.zeros((len(self.keys), 3))
+        else:
+            normals = np.zeros((0, 3))
+        return VoxelMap(self.keys, self.sums, self.counts, normals, self.voxel)
+
+
 @dataclass
 class VoxelMap:
-    """The decoded scans at their ground-truth poses, one centroid per voxel (the grid filter).
+    """Scans at their ground-truth poses, one centroid per voxel (the grid filter), with normals.
 
-    Per-voxel sums and counts are kept per scan, so the map *without* one scan (leave-one-out,
-    see :func:`track_against_map`) costs one subtraction instead of a rebuild. Normals are
-    estimated once, on the full map.
-    """
+    :meth:`cloud` gives ICP its target: the map around a pose (a ball that holds every point a
+    correspondence gate can reach from there, so the registration is the one against the whole
+    map), optionally without one scan's points (leave-one-out: that scan's voxel sums, recomputed
+    from the scan, are subtracted). Normals are the whole map's."""
 
+    keys: np.ndarray  # (M,) sorted voxel keys
     sums: np.ndarray  # (M, 3) float64
     counts: np.ndarray  # (M,) int64
     normals: np.ndarray  # (M, 3)
-    scan_voxels: list[tuple[np.ndarray, np.ndarray, np.ndarray]]  # per scan: (map rows, sums, counts)
+    voxel: float = 0.2
+    _tree: Any = None
 
     def __len__(self) -> int:
         return len(self.counts)
 
-    def cloud(self, without: int | None = None) -> o3d.geometry.PointCloud:
-        """The map as an Open3D cloud with normals, optionally leaving scan ``without`` out."""
-        sums, counts = self.sums, self.counts
-        if without is not None and len(self.scan_voxels[without][0]):
-            rows, s, c = self.scan_voxels[without]
+    def _around(self, centre: np.ndarray, radius: float) -> np.ndarray:
+        if self._tree is None:
+            from scipy.spatial import cKDTree
+
+            self._tree = cKDTree(self.sums / np.maximum(self.counts, 1)[:, None])
+        return np.sort(np.asarray(self._tree.query_ball_point(centre, radius), dtype=np.int64))
+
+    def cloud(self, without: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+              around: tuple[np.ndarray, float] | None = None) -> o3d.geometry.PointCloud:
+        """The map as an Open3D cloud with normals: within ``around = (centre, radius)`` when
+        given, less ``without = scan_voxels(...)`` of one scan when given."""
+        rows = np.arange(len(self.counts)) if around is None else self._around(*around)
+        sums, counts = self.sums[rows], self.counts[rows]
+        if without is not None and len(without[0]) and len(rows):
+            k, s, c = without
+            at = np.searchsorted(self.keys, k)
+            ok = (at < len(self.keys)) & (self.keys[np.minimum(at, len(self.keys) - 1)] == k)
+            pos = np.searchsorted(rows, at[ok])
+            inside = (pos < len(rows)) & (rows[np.minimum(pos, len(rows) - 1)] == at[ok])
             sums, counts = sums.copy(), counts.copy()
-            sums[rows] -= s
-            counts[rows] -= c
+            sums[pos[inside]] -= s[ok][inside]
+            counts[pos[inside]] -= c[ok][inside]
         keep = counts > 0
         pc = _cloud(sums[keep] / counts[keep, None])
-        pc.normals = import_open3d().utility.Vector3dVector(self.normals[keep])
+        pc.normals = import_open3d().utility.Vector3dVector(self.normals[rows][keep])
         return pc
 
 
-def build_map(scans: list[np.ndarray], poses: np.ndarray, params: dict[str, Any] = ICP_PARAMS) -> VoxelMap:
-    """Merge scans placed at ``poses`` into a voxel-centroid map with normals."""
-    v = params["map_voxel"]
-    keys, sums, counts, owner = [], [], [], []
-    for i, (s, T) in enumerate(zip(scans, poses, strict=True)):
-        if len(s) == 0:
-            continue
-        w = transform(s, T)
-        k, inv, c = np.unique(voxel_keys(w, v), return_inverse=True, return_counts=True)
-        keys.append(k)
-        sums.append(np.stack([np.bincount(inv, weights=w[:, j], minlength=len(k)) for j in range(3)], axis=1))
-        counts.append(c)
-        owner.append(np.full(len(k), i))
-    if not keys:
-        empty = np.zeros((0, 3))
-        none = (np.zeros(0, np.int64), empty, np.zeros(0, np.int64))
-        return VoxelMap(empty, np.zeros(0, np.int64), empty, [none] * len(scans))
-    uniq, rows = np.unique(np.concatenate(keys), return_inverse=True)
-    sums_all, counts_all = np.concatenate(sums), np.concatenate(counts)
-    total = np.stack(
-        [np.bincount(rows, weights=sums_all[:, j], minlength=len(uniq)) for j in range(3)], axis=1
-    )
-    total_c = np.bincount(rows, weights=counts_all, minlength=len(uniq)).astype(np.int64)
-    pc = _with_normals(_cloud(total / total_c[:, None]), params)
-    normals = np.asarray(pc.normals) if pc.has_normals() else np.zeros((len(uniq), 3))
-    owner_all = np.concatenate(owner)
-    per_scan = []
-    for i in range(len(scans)):
-        sel = owner_all == i
-        per_scan.append((rows[sel], sums_all[sel], counts_all[sel]))
-    return VoxelMap(total, total_c, normals, per_scan)
+def build_map(scans: Iterable[np.ndarray], poses: np.ndarray, params: dict[str, Any] = ICP_PARAMS) -> VoxelMap:
+    """Merge scans placed at ``poses`` into a voxel-centroid map with normals (one pass over
+    ``scans``, which may be a generator: none of them is kept)."""
+    builder = MapBuilder(params["map_voxel"])
+    for s, T in zip(scans, poses, strict=True):
+        builder.add(s, T)
+    return builder.finish(params)
 
 
 def _query(points: np.ndarray, p: dict[str, Any]) -> o3d.geometry.PointCloud:
@@ -195,46 +251,68 @@ def _register(
     return np.asarray(res.transformation), bool(failed)
 
 
+def _reach(points: np.ndarray, p: dict[str, Any]) -> float:
+    """How far from the sensor a registration of ``points`` can find a correspondence: the
+    farthest point, plus the widest gate, plus room for the pose to move while ICP iterates."""
+    gates = p["max_corr_dist"]
+    gate = max(gates) if isinstance(gates, list | tuple) else float(gates)
+    far = float(np.sqrt(np.einsum("ij,ij->i", points, points).max())) if len(points) else 0.0
+    return far + 2 * gate + 5.0
+
+
 def track_against_map(
-    scans: list[np.ndarray],
+    scans: Iterable[np.ndarray],
     first_pose: np.ndarray,
     world_map: VoxelMap,
     params: dict[str, Any] = ICP_PARAMS,
+    poses: np.ndarray | None = None,
 ) -> TrackingResult:
     """PocoNet's pose tracking: each scan against the map, from the previous estimate.
 
-    With ``params["leave_one_out"]`` each scan is registered against the map built from the
-    *other* scans only (see the module notes for why).
+    One pass over ``scans`` (a generator is fine: one scan is held at a time). The target is the
+    map within reach of the previous estimate (:func:`_reach`). With ``params["leave_one_out"]``
+    each scan is registered against the map without its own points, which are recomputed from
+    the scan at its ground-truth pose (``poses``, the poses the map was built at).
     """
-    poses = np.tile(np.asarray(first_pose, dtype=np.float64), (len(scans), 1, 1))
-    failed = np.zeros(max(len(scans) - 1, 0), dtype=bool)
-    full = None if params["leave_one_out"] else world_map.cloud()
-    for k in range(1, len(scans)):
-        target = full if full is not None else world_map.cloud(without=k)
-        poses[k], failed[k - 1] = _register(scans[k], target, poses[k - 1], params)
-    return TrackingResult(poses, failed)
+    loo = params["leave_one_out"]
+    if loo and poses is None:
+        raise ValueError("leave_one_out tracking needs the ground-truth poses the map was built at")
+    estimates: list[np.ndarray] = []
+    failed: list[bool] = []
+    pose = np.asarray(first_pose, dtype=np.float64)
+    for k, scan in enumerate(scans):
+        if k > 0:
+            own = scan_voxels(scan, poses[k], world_map.voxel) if loo else None
+            target = world_map.cloud(without=own, around=(pose[:3, 3], _reach(np.asarray(scan), params)))
+            pose, bad = _register(scan, target, pose, params)
+            failed.append(bad)
+        estimates.append(pose)
+    out = np.stack(estimates) if estimates else np.zeros((0, 4, 4))
+    return TrackingResult(out, np.asarray(failed, dtype=bool))
 
 
 def track_odometry(
-    scans: list[np.ndarray], first_pose: np.ndarray, params: dict[str, Any] = ICP_PARAMS
+    scans: Iterable[np.ndarray], first_pose: np.ndarray, params: dict[str, Any] = ICP_PARAMS
 ) -> TrackingResult:
-    """Scan-to-scan ICP chained from the first pose, with a constant-velocity initial guess."""
-    poses = np.tile(np.asarray(first_pose, dtype=np.float64), (len(scans), 1, 1))
-    failed = np.zeros(max(len(scans) - 1, 0), dtype=bool)
+    """Scan-to-scan ICP chained from the first pose, with a constant-velocity initial guess
+    (one pass: the previous scan is all it holds)."""
+    estimates: list[np.ndarray] = []
+    failed: list[bool] = []
     motion = np.eye(4)
+    pose = np.asarray(first_pose, dtype=np.float64)
     target = None
-    for k in range(len(scans)):
+    for k, scan in enumerate(scans):
         prev_target = target
         target = (
-            _with_normals(_cloud(scans[k]).voxel_down_sample(params["map_voxel"]), params)
-            if len(scans[k])
-            else _cloud(scans[k])
+            _with_normals(_cloud(scan).voxel_down_sample(params["map_voxel"]), params) if len(scan) else _cloud(scan)
         )
-        if k == 0:
-            continue
-        motion, failed[k - 1] = _register(scans[k], prev_target, motion, params)
-        poses[k] = poses[k - 1] @ motion
-    return TrackingResult(poses, failed)
+        if k > 0:
+            motion, bad = _register(scan, prev_target, motion, params)
+            failed.append(bad)
+            pose = pose @ motion
+        estimates.append(pose)
+    out = np.stack(estimates) if estimates else np.zeros((0, 4, 4))
+    return TrackingResult(out, np.asarray(failed, dtype=bool))
 
 
 def pose_metrics(ref: np.ndarray, result: TrackingResult, prefix: str = "") -> dict[str, float | None]:

@@ -34,7 +34,7 @@ from lwbench import (
     SequenceMetric,
     compare_occupancy,
     hookimpl,
-    occupied_voxels,
+    occupancy_maps,
 )
 
 __all__ = [
@@ -48,20 +48,13 @@ __all__ = [
 ]
 
 # What depends only on the originals is the same for every codec configuration of a run; it is
-# shared through SequenceEvaluation.cached (the run's sequence stage owns the cache), keyed by
-# what it depends on besides the originals.
+# shared through SequenceEvaluation.cached (the run's sequence stage computes it once and hands it
+# to every configuration's task), keyed by what it depends on besides the originals.
 
 
-def ground_truth(seq: SequenceEvaluation) -> tuple[np.ndarray, int]:
-    """Ground-truth poses ``(n, 4, 4)`` and the total number of original points."""
-
-    def compute():
-        frames = [seq.original(i) for i in range(len(seq.frame_indices))]
-        if any(f.pose is None for f in frames):
-            raise ValueError(f"{seq.dataset.name}: sequence metrics need ground-truth poses on every frame")
-        return np.stack([f.pose for f in frames]), sum(len(f.points) for f in frames)
-
-    return seq.cached("ground_truth", compute)
+def ground_truth(seq: SequenceEvaluation) -> np.ndarray:
+    """Ground-truth poses ``(n, 4, 4)`` of the evaluated frames (read without any scan)."""
+    return seq.poses()
 
 
 def split_drives(seq: SequenceEvaluation) -> tuple[list[int], list[int]] | None:
@@ -114,35 +107,44 @@ class LocalizationMetric(SequenceMetric):
     )
     settings = dict(ICP_PARAMS)
 
-    def _track(self, scans: list[np.ndarray], gt: np.ndarray, drives: tuple[list[int], list[int]] | None):
-        """(map, tracking, positions tracked): the map from the mapping drive (or every scan),
-        tracked: the tracking drive (or the same scans, each against the map without it)."""
-        if drives is None:
-            world_map = build_map(scans, gt, self.settings)
-            return world_map, track_against_map(scans, gt[0], world_map, self.settings), list(range(len(scans)))
-        mapping, tracking = drives
-        world_map = build_map([scans[i] for i in mapping], gt[mapping], self.settings)
-        # The map holds none of the tracked scans: nothing to leave out.
-        settings = {**self.settings, "leave_one_out": False}
-        track = track_against_map([scans[i] for i in tracking], gt[tracking][0], world_map, settings)
+    def _localize(self, passes, gt: np.ndarray, drives: tuple[list[int], list[int]] | None):
+        """(map, tracking, positions tracked). ``passes(positions, what)`` is one pass over the
+        scans at those positions (decoded or original): the map from the mapping drive (or every
+        scan), then the tracking drive (or the same scans, each against the map without it)."""
+        everything = list(range(len(gt)))
+        mapping, tracking = drives if drives is not None else (everything, everything)
+        world_map = build_map((s.decoded for s in passes(mapping, "map")), gt[mapping], self.settings)
+        # With two drives the map holds none of the tracked scans: nothing to leave out.
+        settings = self.settings if drives is None else {**self.settings, "leave_one_out": False}
+        scans = (s.decoded for s in passes(tracking, "tracking"))
+        track = track_against_map(scans, gt[tracking][0], world_map, settings, poses=gt[tracking])
         return world_map, track, tracking
 
     def compute(self, seq: SequenceEvaluation) -> dict[str, float | None]:
-        gt, n_original = ground_truth(seq)
+        gt = ground_truth(seq)
         drives = split_drives(seq)
-        world_map, tracking, tracked = self._track(seq.decoded, gt, drives)
+        world_map, tracking, tracked = self._localize(seq.steps, gt, drives)
         out = pose_metrics(gt[tracked], tracking)
         out["map_points"] = float(len(world_map))
-        if drives is not None:
-            n_original = sum(len(seq.original(i)) for i in drives[0])
-        out["map_share"] = len(world_map) / n_original if n_original else None
 
-        def original_failures() -> int:
-            originals = [seq.original(i).points for i in range(len(seq.frame_indices))]
-            return int(self._track(originals, gt, drives)[1].failed.sum())
+        def on_originals() -> dict[str, int]:
+            """The same protocol on the original scans (two passes over them), and how many
+            points the mapped originals have: computed once per run, shared by every codec."""
+            mapped = [0]
+
+            def originals(positions, what):
+                for step in seq.originals(positions, f"originals {what}"):
+                    if what == "map":
+                        mapped[0] += len(step.decoded)
+                    yield step
+
+            failures = int(self._localize(originals, gt, drives)[1].failed.sum())
+            return {"failures": failures, "points": mapped[0]}
 
         settings_key = json.dumps(self.settings, sort_keys=True, default=str)
-        out["icp_failures_original"] = float(seq.cached(f"original_tracking:{settings_key}", original_failures))
+        original = seq.cached(f"original_tracking:{settings_key}", on_originals)
+        out["map_share"] = len(world_map) / original["points"] if original["points"] else None
+        out["icp_failures_original"] = float(original["failures"])
         return out
 
 
@@ -160,10 +162,10 @@ class OdometryMetric(SequenceMetric):
     settings = dict(ICP_PARAMS)
 
     def compute(self, seq: SequenceEvaluation) -> dict[str, float | None]:
-        gt, _ = ground_truth(seq)
+        gt = ground_truth(seq)
         drives = split_drives(seq)
-        tracked = drives[1] if drives is not None else list(range(len(seq.decoded)))  # one drive: no jump
-        scans = [seq.decoded[i] for i in tracked]
+        tracked = drives[1] if drives is not None else list(range(len(seq)))  # one drive: no jump
+        scans = (s.decoded for s in seq.steps(tracked, "odometry"))
         return pose_metrics(gt[tracked], track_odometry(scans, gt[tracked][0], self.settings), prefix="odom_")
 
 
@@ -189,19 +191,23 @@ class OccupancyMetric(SequenceMetric):
     )
 
     def compute(self, seq: SequenceEvaluation) -> dict[str, float | None]:
-        gt, _ = ground_truth(seq)
+        ground_truth(seq)  # every frame has a pose, or this metric has nothing to say
         sensor = seq.original(0).sensor
         p = self.settings
+        resolutions = tuple(p["resolutions"])
+
+        def maps(passes) -> dict[float, np.ndarray]:
+            def scans(what):
+                return ((s.decoded, s.pose) for s in passes(None, what))
+
+            return occupancy_maps(scans, sensor, resolutions, p["l_hit"], p["l_miss"], p["max_range"])
+
+        key = f"original_occupancy:{resolutions}:{p['l_hit']}:{p['l_miss']}:{p['max_range']}"
+        ref = seq.cached(key, lambda: maps(seq.originals))
+        dec = maps(seq.steps)
         out: dict[str, float | None] = {}
-        for i, v in enumerate(p["resolutions"]):
-
-            def original_map(v=v):
-                scans = [seq.original(k).points for k in range(len(seq.frame_indices))]
-                return occupied_voxels(scans, gt, sensor, v, p["l_hit"], p["l_miss"], p["max_range"])
-
-            ref = seq.cached(f"original_occupancy:{v}:{p['l_hit']}:{p['l_miss']}:{p['max_range']}", original_map)
-            dec = occupied_voxels(seq.decoded, gt, sensor, v, p["l_hit"], p["l_miss"], p["max_range"])
-            for name, value in compare_occupancy(ref, dec).items():
+        for i, v in enumerate(resolutions):
+            for name, value in compare_occupancy(ref[v], dec[v]).items():
                 out[f"occ_{name}{_suffix(v, i == 0)}"] = value
         return out
 

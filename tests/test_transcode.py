@@ -16,12 +16,12 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from lwbench import DataFormatError, Frame, PayloadError, SensorModel
+from lwbench import DataFormatError, Frame, PayloadError, SensorModel, codec_class
 from lwbench.cli import app
 from lwbench.io import read_point_file, write_kitti_sequence
 from lwbench.leaderboard import build_leaderboard
 from lwbench.registry import get_registry
-from lwbench.run.record import DECODED
+from lwbench.run.record import DECODED, PAYLOAD
 from lwbench.store import ResultStore
 from lwbench.streamfile import open_payloads
 from lwbench.testing import room_scan
@@ -57,9 +57,18 @@ def run_store(tmp_path_factory, lab_folder) -> Path:
 
 
 def _run_clouds(store: Path, codec: str) -> dict[int, np.ndarray]:
+    """What the run decoded: its stored payloads (what its sequence metrics re-decode), decoded by
+    a receiver handed the run's sensor -- and, for the first frame, the cloud the run kept."""
     with ResultStore(store, readonly=True) as results:
         (entry,) = [e for e in build_leaderboard(results) if e.codec == codec]
-        return {f: results.artifact(k, DECODED) for f, k in entry.evaluations.items()}
+        out = {}
+        for f, k in entry.evaluations.items():
+            payload = results.artifact(k, PAYLOAD).tobytes()
+            decoder = codec_class(codec)(**entry.params).use_sensors([LAB16])
+            out[f] = decoder.decode(payload)
+        first = min(entry.evaluations)
+        assert np.array_equal(results.artifact(entry.evaluations[first], DECODED), out[first])
+        return out
 
 
 @pytest.mark.parametrize("layout", ["frames", "stream"])

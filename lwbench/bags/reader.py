@@ -345,6 +345,10 @@ class BagDataset(Dataset):
         self.close()
         raise IndexError(f"rosbag: message {index} of {self.topic} is missing from {self.path}")
 
+    def pose(self, index: int) -> np.ndarray | None:
+        """From tf / odometry, read when the bag was opened: no cloud is read."""
+        return None if self.poses is None else self.poses[index % len(self)]
+
     def frame(self, index: int) -> Frame:
         if not 0 <= index < len(self):
             raise IndexError(f"rosbag: frame {index} out of range (0..{len(self) - 1})")

@@ -182,6 +182,9 @@ class RunProgress:
                 self._sequence_phase()
             return
         phase = self._sequence_phase()
+        if row is None:  # inside a task: which configuration, metric, pass and frame
+            phase.update(event.done, total=event.total, what=event.what)
+            return
         phase.update(event.done, total=event.total, what=f"last: {row.codec} · {row.part}", part=row.codec)
 
     def _sequence_phase(self):

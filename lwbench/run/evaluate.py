@@ -47,7 +47,8 @@ class FrameResult:
     metrics: dict[str, float | None] = field(default_factory=dict)
     extra: dict[str, Any] = field(default_factory=dict)
     error: str | None = None
-    decoded: np.ndarray | None = None  # kept only when the caller asked for it
+    decoded: np.ndarray | None = None  # kept only when the caller asked for it (a report's gallery)
+    payload: bytes | None = None  # kept when a later stage re-decodes it (the sequence metrics)
 
     @classmethod
     def failure(cls, frame: int, config: CodecConfig, exc: BaseException, extra: dict | None = None) -> FrameResult:
@@ -134,21 +135,22 @@ class Evaluator:
         return encode_decode(codec_cls, config, encoder, frame), extra
 
     def evaluate(
-        self, frame: Frame, configs: Sequence[CodecConfig], *, keep_decoded: bool = False
+        self, frame: Frame, configs: Sequence[CodecConfig], *, keep_decoded: bool = False, keep_payload: bool = False
     ) -> list[FrameResult]:
         """Every configuration on one frame; the frame's k-d trees and normals are shared."""
-        return list(self.evaluate_each(frame, configs, keep_decoded=keep_decoded))
+        return list(self.evaluate_each(frame, configs, keep_decoded=keep_decoded, keep_payload=keep_payload))
 
     def evaluate_each(
-        self, frame: Frame, configs: Sequence[CodecConfig], *, keep_decoded: bool = False
+        self, frame: Frame, configs: Sequence[CodecConfig], *, keep_decoded: bool = False, keep_payload: bool = False
     ) -> Iterator[FrameResult]:
         """:meth:`evaluate`, one result at a time (a worker process reports each as it is done,
         so a configuration that hangs or kills the process loses only its own result)."""
         shared: dict[str, Any] = {}
         for config in configs:
-            yield self._one(frame, config, shared, keep_decoded)
+            yield self._one(frame, config, shared, keep_decoded, keep_payload)
 
-    def _one(self, frame: Frame, config: CodecConfig, shared: dict[str, Any], keep_decoded: bool) -> FrameResult:
+    def _one(self, frame: Frame, config: CodecConfig, shared: dict[str, Any], keep_decoded: bool,
+             keep_payload: bool = False) -> FrameResult:
         extra: dict[str, Any] = {}
         try:
             if len(frame) == 0:
@@ -169,7 +171,8 @@ class Evaluator:
                     except Exception as exc:  # noqa: BLE001 - a metric's bug fails the row, not the run
                         raise LwbenchError(f"metric {m.name}: {type(exc).__name__}: {exc}") from exc
             extra.update(watch.ms)
-            return FrameResult(frame.index, config, "ok", values, extra, None, enc.decoded if keep_decoded else None)
+            return FrameResult(frame.index, config, "ok", values, extra, None, enc.decoded if keep_decoded else None,
+                               enc.payload if keep_payload else None)
         except MissingDependencyError:
             raise  # the machine, not the codec: stop the run with the install hint, record nothing
         except Exception as exc:  # noqa: BLE001 - the failure is the result

@@ -39,11 +39,14 @@ from multiprocessing.connection import wait
 
 from lwbench.dataset import Dataset
 from lwbench.errors import LwbenchError, MissingDependencyError, WorkerError
+from lwbench.measure import Stopwatch
+from lwbench.metric import SequenceEvaluation
 from lwbench.registry import Registry, registry_from_recipe
 from lwbench.sandbox import Sandbox, SandboxError, cap_memory, enter_child, how_it_died
 
-from .evaluate import Evaluator, FrameResult
+from .evaluate import Evaluator, FrameResult, decoded_cloud
 from .plan import CodecConfig, DatasetSpec
+from .sequence import SequenceResult, SequenceTask, Throttle, failed_result
 
 __all__ = [
     "DEFAULT_TIMEOUT_S",
@@ -66,12 +69,34 @@ _MEMORY_MARKERS = ("MemoryError", "can't allocate memory", "Cannot allocate memo
 
 @dataclass(frozen=True)
 class FrameTask:
-    """One frame and the configurations to evaluate on it (they share its k-d trees)."""
+    """One frame and the configurations to evaluate on it (they share its k-d trees);
+    ``keep_decoded``: return the decoded clouds (a report's gallery), ``keep_payload``: the
+    payloads (the sequence stage re-decodes them)."""
 
     dataset: DatasetSpec
     frame: int
     configs: tuple[CodecConfig, ...]
     keep_decoded: bool = False
+    keep_payload: bool = False
+
+    @property
+    def label(self) -> str:
+        return f"frame {self.frame}"
+
+    def failure(self, config: CodecConfig, exc: BaseException, extra: dict | None = None) -> FrameResult:
+        return FrameResult.failure(self.frame, config, exc, extra)
+
+    def split(self) -> list[FrameTask]:
+        """One task per configuration (a Ray task each)."""
+        return [FrameTask(self.dataset, self.frame, (c,), self.keep_decoded, self.keep_payload) for c in self.configs]
+
+    def rest(self, configs: tuple[CodecConfig, ...]) -> FrameTask | None:
+        """The same task for the ``configs`` not done yet (a lost worker's remainder)."""
+        return FrameTask(self.dataset, self.frame, configs, self.keep_decoded, self.keep_payload) if configs else None
+
+
+Task = FrameTask | SequenceTask
+Result = FrameResult | SequenceResult
 
 
 class Worker:
@@ -80,28 +105,71 @@ class Worker:
     def __init__(self, registry: Registry, metric_params: dict[str, dict], datasets: dict | None = None) -> None:
         self.evaluator = Evaluator(registry, metric_params)
         self.registry = registry
+        self.metric_params = metric_params
         self.datasets: dict[str, Dataset] = dict(datasets or {})
 
-    def run(self, task: FrameTask) -> list[FrameResult]:
+    def dataset(self, spec: DatasetSpec) -> Dataset:
+        dataset = self.datasets.get(spec.label)
+        if dataset is None:
+            dataset = self.datasets[spec.label] = spec.build(self.registry)
+        return dataset
+
+    def run(self, task: Task) -> list[Result]:
         return list(self.run_each(task))
 
-    def run_each(self, task: FrameTask, on_start: Callable[[CodecConfig], None] | None = None
-                 ) -> Iterator[FrameResult]:
-        """Each configuration's result as it is done; ``on_start`` is told before each begins."""
+    def run_each(self, task: Task, on_start: Callable[[CodecConfig], None] | None = None,
+                 on_progress: Callable[[SequenceTask, str, int, int], None] | None = None) -> Iterator[Result]:
+        """Each configuration's result as it is done; ``on_start`` is told before each begins,
+        ``on_progress`` how far a sequence task's pass is."""
+        if isinstance(task, SequenceTask):
+            if on_start is not None:
+                on_start(task.config)
+            yield run_sequence_task(self, task, on_progress)
+            return
         try:
-            dataset = self.datasets.get(task.dataset.label)
-            if dataset is None:
-                dataset = self.datasets[task.dataset.label] = task.dataset.build(self.registry)
+            dataset = self.dataset(task.dataset)
             frame = dataset[task.frame]
         except Exception as exc:  # noqa: BLE001 - a bad scan fails its rows, not the run
             err = RuntimeError(f"loading frame {task.frame}: {type(exc).__name__}: {exc}")
             yield from (FrameResult.failure(task.frame, c, err) for c in task.configs)
             return
-        each = self.evaluator.evaluate_each(frame, task.configs, keep_decoded=task.keep_decoded)
+        each = self.evaluator.evaluate_each(frame, task.configs, keep_decoded=task.keep_decoded,
+                                            keep_payload=task.keep_payload)
         for config in task.configs:
             if on_start is not None:
                 on_start(config)
             yield next(each)
+
+
+def run_sequence_task(worker: Worker, task: SequenceTask,
+                      on_progress: Callable[[SequenceTask, str, int, int], None] | None = None) -> SequenceResult:
+    """One sequence metric over one configuration: the payloads decoded as the metric's passes
+    reach them, by one receiver (a decoder handed the dataset's sensor, as in the frame stage)."""
+    try:
+        dataset = worker.dataset(task.dataset)
+        cls = worker.registry.sequence_metrics[task.metric]
+        metric = cls(**worker.metric_params.get(task.metric, {}))
+        codec_cls = worker.registry.codec(task.config.name)
+        sensor = getattr(dataset, "sensor", None) or dataset[task.frame_indices[0]].sensor
+        decoder = codec_cls(**task.config.params).use_sensors([sensor])
+
+        def decode(position: int):
+            return decoded_cloud(task.config.name, decoder.decode(task.payloads.get(position)))
+
+        cache = dict(task.shared)
+        before = set(cache)
+        report = None if on_progress is None else Throttle(lambda what, k, n: on_progress(task, what, k, n))
+        seq = SequenceEvaluation(dataset, list(task.frame_indices), decode, task.config.name, task.config.params,
+                                 task.seed, _cache=cache, on_step=report)
+        watch = Stopwatch()
+        with watch.time("metric_ms"):
+            values = metric.compute(seq)
+        return SequenceResult(task.config, task.metric, "ok", values, dict(watch.ms),
+                              shared={k: v for k, v in cache.items() if k not in before})
+    except MissingDependencyError:
+        raise  # the machine, not the codec: stop the run with the install hint
+    except Exception as exc:  # noqa: BLE001 - the failure is the result
+        return failed_result(task, exc)
 
 
 class InProcessExecutor:
@@ -110,10 +178,11 @@ class InProcessExecutor:
 
     def __init__(self, worker: Worker) -> None:
         self.worker = worker
+        self.on_progress: Callable[[SequenceTask, str, int, int], None] | None = None
 
-    def map(self, tasks: Iterable[FrameTask]) -> Iterator[FrameResult]:
+    def map(self, tasks: Iterable[Task]) -> Iterator[Result]:
         for task in tasks:
-            yield from self.worker.run_each(task)
+            yield from self.worker.run_each(task, on_progress=self.on_progress)
 
     def close(self) -> None:
         pass
@@ -157,7 +226,8 @@ def _worker_main(conn, parent: int, recipe, metric_params: dict, memory_mb: int,
             return
         recycle = False
         try:
-            for result in worker.run_each(task, on_start=lambda c: conn.send(("start", c.key))):
+            for result in worker.run_each(task, on_start=lambda c: conn.send(("start", c.key)),
+                                          on_progress=lambda t, what, k, n: conn.send(("progress", what, k, n))):
                 conn.send(("result", result))
                 recycle = recycle or any(m in (result.error or "") for m in _MEMORY_MARKERS)
         except MissingDependencyError as exc:  # the machine, not a codec: the driver stops the run
@@ -198,6 +268,9 @@ class ProcessExecutor:
         self.preload = tuple(preload)
         self._slots: list[_Slot] = []
         self.started = 0  # worker processes started (replacements included)
+        # Told how far a worker's sequence task is (task, what, done, total); each report also
+        # restarts that task's timeout: a long pass that advances is not a hang.
+        self.on_progress: Callable[[SequenceTask, str, int, int], None] | None = None
 
     # -- workers ----------------------------------------------------------------------------
     def _spawn(self, n: int = 1) -> list[_Slot]:
@@ -237,24 +310,24 @@ class ProcessExecutor:
         self.close()
 
     # -- tasks ------------------------------------------------------------------------------
-    def _assign(self, slot: _Slot, task: FrameTask) -> None:
+    def _assign(self, slot: _Slot, task: Task) -> None:
         slot.task, slot.remaining, slot.current, slot.deadline = task, list(task.configs), None, None
         slot.box.send(task)
 
-    def _lost(self, slot: _Slot, why: str, queue: deque) -> list[FrameResult]:
+    def _lost(self, slot: _Slot, why: str, queue: deque) -> list[Result]:
         """The slot's worker is gone: its current evaluation fails with ``why``, the rest of its
         task goes back to the front of the queue, and the worker is replaced."""
         task = slot.task
         blamed = [slot.current] if slot.current is not None else list(slot.remaining)
-        failed = [FrameResult.failure(task.frame, c, WorkerError(why), {"isolation": why}) for c in blamed]
-        rest = tuple(c for c in slot.remaining if c not in blamed)
-        if rest:
-            queue.appendleft(FrameTask(task.dataset, task.frame, rest, task.keep_decoded))
+        failed = [task.failure(c, WorkerError(why), {"isolation": why}) for c in blamed]
+        rest = task.rest(tuple(c for c in slot.remaining if c not in blamed))
+        if rest is not None:
+            queue.appendleft(rest)
         slot.task = None
         self._replace(slot)
         return failed
 
-    def map(self, tasks: Iterable[FrameTask]) -> Iterator[FrameResult]:
+    def map(self, tasks: Iterable[Task]) -> Iterator[Result]:
         queue = deque(tasks)
         if not queue:
             return
@@ -277,6 +350,11 @@ class ProcessExecutor:
                         if kind == "start":
                             slot.current = by_key[payload[0]]
                             slot.deadline = None if self.timeout_s is None else time.monotonic() + self.timeout_s
+                        elif kind == "progress":  # a sequence task's pass: alive, and how far
+                            if self.timeout_s is not None:
+                                slot.deadline = time.monotonic() + self.timeout_s
+                            if self.on_progress is not None:
+                                self.on_progress(slot.task, *payload)
                         elif kind == "result":
                             result = payload[0]
                             slot.remaining = [c for c in slot.remaining if c.key != result.config.key]

@@ -7,6 +7,12 @@ same path on every node, or come from a dataset that generates it, like ``sim`` 
 the :class:`~.evaluate.FrameResult`. Results stream back to the driver as they complete, and the
 driver alone writes the store, exactly as with the local executors.
 
+Sequence tasks (one sequence metric over one configuration) are Ray tasks too: they read the
+configuration's payloads from the files beside the results store, so on a multi-node cluster the
+store's folder must be reachable at the same path on every node (a shared filesystem), as the data
+is. A Ray task cannot report its progress while it runs, so a sequence task's time limit is the
+per-call timeout once per 100 frames of its sequence.
+
 Faults behave as in :class:`~.execute.ProcessExecutor`: a task still running after the per-call
 timeout is cancelled (its worker killed) and recorded as failed; a task whose worker dies
 (segfault, ``os._exit``, Ray's memory monitor) is recorded as failed, with Ray's reason.
@@ -25,17 +31,18 @@ from collections.abc import Iterable, Iterator
 from lwbench.errors import MissingDependencyError, ParameterError, WorkerError
 from lwbench.registry import Registry, registry_from_recipe
 
-from .evaluate import FrameResult
-from .execute import DEFAULT_TIMEOUT_S, FrameTask, Worker
+from .execute import DEFAULT_TIMEOUT_S, Result, Task, Worker
 from .plan import CodecConfig
+from .sequence import SequenceTask
 
 __all__ = ["RayExecutor"]
 
 _WORKERS: dict[str, Worker] = {}  # per Ray worker process, by (recipe, metric parameters)
 
 
-def _evaluate(recipe, metric_params: dict, task: FrameTask, threads: int) -> FrameResult:
-    """The Ray task: one frame through one configuration, in a Ray worker process."""
+def _evaluate(recipe, metric_params: dict, task: Task, threads: int) -> Result:
+    """The Ray task: one frame through one configuration (or one sequence metric over one
+    configuration), in a Ray worker process."""
     os.environ["LWBENCH_THREADS"] = str(threads)
     key = repr((recipe, sorted(metric_params.items())))
     worker = _WORKERS.get(key)
@@ -79,6 +86,7 @@ class RayExecutor:
         self.max_in_flight = max(1, max_in_flight if max_in_flight > 1 else slots)
         self._remote = ray.remote(max_retries=0)(_evaluate)
         self._pending: dict = {}
+        self.on_progress = None  # a Ray task reports no progress before it returns
 
     def _wants_gpu(self, config: CodecConfig) -> bool:
         device = str(config.params.get("device", "cpu"))
@@ -88,7 +96,7 @@ class RayExecutor:
             raise ParameterError(f"{config.name}.device={device}: the Ray cluster has no GPU")
         return bool(self.gpus)
 
-    def _submit(self, task: FrameTask):
+    def _submit(self, task: Task):
         (config,) = task.configs
         options = {"num_cpus": self.cpus_per_task}
         if self._wants_gpu(config):
@@ -97,21 +105,29 @@ class RayExecutor:
         self._pending[ref] = (task, time.monotonic())
         return ref
 
-    def _failure(self, task: FrameTask, why: str) -> FrameResult:
+    def _failure(self, task: Task, why: str) -> Result:
         (config,) = task.configs
-        return FrameResult.failure(task.frame, config, WorkerError(why), {"isolation": why})
+        return task.failure(config, WorkerError(why), {"isolation": why})
 
-    def map(self, tasks: Iterable[FrameTask]) -> Iterator[FrameResult]:
+    def _limit_s(self, task: Task) -> float | None:
+        """A task's time limit: the per-call timeout; a sequence task, which cannot report its
+        progress from a Ray worker, gets it once per 100 frames of its sequence."""
+        if self.timeout_s is None or not isinstance(task, SequenceTask):
+            return self.timeout_s
+        return self.timeout_s * max(1.0, len(task.frame_indices) / 100)
+
+    def map(self, tasks: Iterable[Task]) -> Iterator[Result]:
         ray = self.ray
         # One Ray task per evaluation: a timeout or a dead worker costs exactly one row.
-        queue = deque(FrameTask(t.dataset, t.frame, (c,), t.keep_decoded) for t in tasks for c in t.configs)
+        queue = deque(one for t in tasks for one in t.split())
         while queue or self._pending:
             while queue and len(self._pending) < self.max_in_flight:
                 self._submit(queue.popleft())
             now = time.monotonic()
             wait_s = 1.0
+            limits = [(t0, self._limit_s(t)) for t, t0 in self._pending.values()]
             if self.timeout_s is not None:
-                wait_s = max(0.05, min(wait_s, *(t0 + self.timeout_s - now for _, t0 in self._pending.values())))
+                wait_s = max(0.05, min(wait_s, *(t0 + lim - now for t0, lim in limits)))
             done, _ = ray.wait(list(self._pending), num_returns=1, timeout=wait_s)
             for ref in done:
                 task, _ = self._pending.pop(ref)
@@ -124,10 +140,10 @@ class RayExecutor:
             if self.timeout_s is not None:
                 now = time.monotonic()
                 for ref, (task, t0) in list(self._pending.items()):
-                    if now - t0 > self.timeout_s:
+                    if now - t0 > self._limit_s(task):
                         ray.cancel(ref, force=True)
                         del self._pending[ref]
-                        yield self._failure(task, f"timed out after {self.timeout_s:g} s (the Ray task was "
+                        yield self._failure(task, f"timed out after {self._limit_s(task):g} s (the Ray task was "
                                                   "cancelled and its worker killed; --timeout)")
 
     def close(self) -> None:

@@ -6,9 +6,10 @@ name, version, the package release that provided it), the codec parameters and s
 Provenance (lwbench, library versions, machine) is measured once per run and handed around as a
 :class:`Provenance` object; nothing here reads module globals.
 
-Artifacts: the decoded cloud of an evaluation is stored with its row (same transaction) when a
-later stage needs it -- the sequence metrics, a report's gallery -- under the evaluation key, so
-re-scoring with another metric version reuses it.
+Artifacts, stored with the row (same transaction) under the evaluation key, so re-scoring with
+another metric version reuses them: the *payload* when the sequence metrics will re-decode it
+(bytes on the wire: 4 kB a VSGP frame, where its decoded cloud is 1.4 MB), and the decoded cloud
+only where a report shows it (the first frame).
 """
 
 from __future__ import annotations
@@ -16,15 +17,18 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+
 from lwbench.registry import Registry
 from lwbench.store import ResultRow, ResultStore, environment_versions, machine_description
 
 from .evaluate import FrameResult
 from .plan import CodecConfig
 
-__all__ = ["Provenance", "RowFactory", "DECODED", "ORIGINAL", "original_key", "record_original"]
+__all__ = ["Provenance", "RowFactory", "DECODED", "ORIGINAL", "PAYLOAD", "original_key", "record_original"]
 
-DECODED = "decoded"  # artifact name of a decoded cloud
+DECODED = "decoded"  # artifact name of a decoded cloud (kept for a report's gallery frame)
+PAYLOAD = "payload"  # artifact name of a payload's bytes (uint8), what the sequence stage re-decodes
 ORIGINAL = "points"  # artifact name of an original scan (under original_key)
 
 
@@ -121,10 +125,15 @@ class RowFactory:
 
 
 def record_frame(store: ResultStore, rows: RowFactory, result: FrameResult) -> ResultRow:
-    """Store one frame result (with its decoded cloud, if it was kept) and return its row."""
+    """Store one frame result (with its payload and decoded cloud, if they were kept) and return its row."""
     row = rows.frame_row(result.frame, result.config, result)
-    artifacts = {DECODED: result.decoded} if result.decoded is not None and result.status == "ok" else None
-    store.put(row, artifacts)
+    artifacts: dict = {}
+    if result.status == "ok":
+        if result.decoded is not None:
+            artifacts[DECODED] = result.decoded
+        if result.payload is not None:
+            artifacts[PAYLOAD] = np.frombuffer(result.payload, dtype=np.uint8)
+    store.put(row, artifacts or None)
     return row
 
 

@@ -17,7 +17,7 @@ from lwbench.errors import ParameterError
 from lwbench.registry import Registry, get_registry
 from lwbench.store import ResultRow, ResultStore
 
-from .evaluate import Evaluator, FrameResult
+from .evaluate import Evaluator
 from .execute import DEFAULT_TIMEOUT_S, PRELOAD, FrameTask, InProcessExecutor, ProcessExecutor, Worker
 from .plan import CodecConfig, RunPlan
 from .record import Provenance, RowFactory, record_frame, record_original
@@ -38,12 +38,15 @@ class RunSummary:
 
 @dataclass(frozen=True)
 class Progress:
-    """What :meth:`Runner.run` reports after each stored row."""
+    """What :meth:`Runner.run` reports after each stored row -- and, inside the sequence stage,
+    how far a running task is (``phase="sequence-step"``, ``row=None``, ``what``: configuration,
+    metric, pass and frame, e.g. ``raw · localization · tracking 812/1600``)."""
 
-    phase: str  # "frames" | "sequence"
+    phase: str  # "frames" | "sequence" | "sequence-step"
     done: int
     total: int
     row: ResultRow | None = None
+    what: str = ""
 
 
 class Runner:
@@ -100,8 +103,8 @@ class Runner:
         if plan.sequence_metrics and self.dataset.has_poses:
             metrics = self.registry.sequence_metric_instances(plan.metric_params, plan.metrics)
             if metrics:
-                self.sequence = SequenceStage(store, self.dataset, self.frame_indices, self.rows, self.evaluator,
-                                              metrics)
+                self.sequence = SequenceStage(store, self.dataset, plan.dataset, self.frame_indices, self.rows,
+                                              metrics, plan.seed)
 
     # -- what the run asks for -------------------------------------------------------------
     def keys(self) -> set[str]:
@@ -118,14 +121,15 @@ class Runner:
         return status is None or (status == "failed" and self.retry_failed)
 
     def pending(self) -> list[FrameTask]:
-        # Decoded clouds are kept when the sequence stage needs them, and for the first frame
-        # (a report shows one decoded frame per configuration).
+        # Payloads are kept when the sequence stage will re-decode them; decoded clouds only for
+        # the first frame (a report shows one decoded frame per configuration).
         first = self.frame_indices[0] if self.frame_indices else None
         tasks = []
         for i in self.frame_indices:
             configs = tuple(c for c in self.configs if self._todo(self.rows.frame_row(i, c).key))
             if configs:
-                tasks.append(FrameTask(self.plan.dataset, i, configs, self.sequence is not None or i == first))
+                tasks.append(FrameTask(self.plan.dataset, i, configs, keep_decoded=i == first,
+                                       keep_payload=self.sequence is not None))
         return tasks
 
     # -- the run ---------------------------------------------------------------------------
@@ -157,14 +161,16 @@ class Runner:
                 summary.evaluated += 1
                 recorded(row, "frames", summary.evaluated, total)
             if self.sequence is not None:
-                # A cloud missing from the store (rows of an older lwbench) is re-evaluated by the
-                # same executor, isolated like every other evaluation.
-                def evaluate_one(index: int, config: CodecConfig) -> FrameResult:
-                    return next(iter(executor.map([FrameTask(self.plan.dataset, index, (config,), True)])))
-
-                self.sequence.evaluate = evaluate_one
+                # The sequence tasks run on the same executor as the frames (workers, Ray); a
+                # frame whose payload is missing (rows of an older lwbench) is re-evaluated there.
                 n = sum(self._todo(k) for k in self.sequence.keys(self.configs))
-                for row in self.sequence.run(self.configs, self._todo, self.plan.seed):
+                if on_progress is not None:
+                    def step(task, what: str, k: int, total: int) -> None:
+                        on_progress(Progress("sequence-step", summary.sequence_rows, n, None,
+                                             f"{task.label} · {what} {k}/{total}"))
+
+                    executor.on_progress = step
+                for row in self.sequence.run(self.configs, self._todo, executor):
                     summary.sequence_rows += 1
                     recorded(row, "sequence", summary.sequence_rows, n)
         except KeyboardInterrupt:

@@ -147,6 +147,10 @@ class SimDataset(Dataset):
     def has_poses(self) -> bool:
         return True
 
+    def pose(self, index: int) -> np.ndarray:
+        """The path's pose: no ray cast needed."""
+        return self.poses[index]
+
     def frame(self, index: int) -> Frame:
         if not 0 <= index < self._n:
             raise IndexError(f"sim: frame {index} out of range (0..{self._n - 1})")
