@@ -117,20 +117,22 @@ def _misses(cand: np.ndarray, rays: _ScanRays, sensor: SensorModel, voxel: float
 
 
 class _KeyCounts:
-    """Sorted unique keys and how often each was added, one scan's keys at a time; memory grows
-    with the distinct keys (the area), not with the scans (folds every ``flush`` pending keys)."""
+    """Sorted unique keys and how often each was added, one scan's keys at a time. Pending keys
+    are folded in once there are as many as distinct keys already (at least ``least``), so memory
+    stays within about twice the distinct keys -- the area, not the scans -- and each key is
+    sorted O(log) times over a drive."""
 
-    def __init__(self, flush: int = 4_000_000) -> None:
+    def __init__(self, least: int = 1 << 16) -> None:
         self.keys = np.zeros(0, dtype=np.int64)
         self.counts = np.zeros(0, dtype=np.int64)
         self._pending: list[np.ndarray] = []
-        self._n, self._flush = 0, flush
+        self._n, self._least = 0, least
 
     def add(self, keys: np.ndarray) -> None:
         if len(keys):
             self._pending.append(keys)
             self._n += len(keys)
-            if self._n >= self._flush:
+            if self._n >= max(len(self.keys), self._least):
                 self.fold()
 
     def fold(self) -> tuple[np.ndarray, np.ndarray]:

@@ -108,13 +108,14 @@ class MapBuilder:
     """The voxel-centroid map, built one scan at a time: memory grows with the voxels (the area
     covered), not with the scans.
 
-    Scans wait in a small buffer and are folded into the running sums every ``flush_points``
-    voxel entries. A fold lists the running sums first and then each buffered scan in order, so
-    every voxel's sum is added up in scan order -- bit for bit what one ``bincount`` over all
-    scans gives (``0 + x == x``): the map does not depend on how the drive was cut into folds."""
+    Scans wait in a buffer, folded into the running sums once it holds as many voxel entries as
+    the map (at least ``least``): memory stays within about twice the map. A fold lists the
+    running sums first and then each buffered scan in order, so every voxel's sum is added up in
+    scan order -- bit for bit what one ``bincount`` over all scans gives (``0 + x == x``): the map
+    does not depend on how the drive was cut into folds."""
 
-    def __init__(self, voxel: float, flush_points: int = 2_000_000) -> None:
-        self.voxel, self.flush_points = voxel, flush_points
+    def __init__(self, voxel: float, least: int = 1 << 15) -> None:
+        self.voxel, self.least = voxel, least
         self.keys = np.zeros(0, np.int64)
         self.sums = np.zeros((0, 3))
         self.counts = np.zeros(0, np.int64)
@@ -126,7 +127,7 @@ class MapBuilder:
         if len(k):
             self._pending.append((k, sums, c))
             self._pending_n += len(k)
-            if self._pending_n >= self.flush_points:
+            if self._pending_n >= max(len(self.keys), self.least):
                 self._fold()
 
     def _fold(self) -> None:

@@ -59,7 +59,13 @@ from .kit import (
     metric_checks,
     parametrize_with_checks,
 )
-from .metrics import check_metric_declared, check_metric_deterministic, check_metric_values, kit_drive
+from .metrics import (
+    check_metric_declared,
+    check_metric_deterministic,
+    check_metric_streams,
+    check_metric_values,
+    kit_drive,
+)
 
 __all__ = [
     "ConformanceError",
@@ -87,6 +93,7 @@ __all__ = [
     "check_metric",
     "check_metric_declared",
     "check_metric_deterministic",
+    "check_metric_streams",
     "check_metric_values",
     "codec_checks",
     "cylinder_scan",

@@ -9,6 +9,7 @@ never NaN; only declared ids; the same values twice.
 from __future__ import annotations
 
 import json
+import tracemalloc
 
 import numpy as np
 
@@ -22,7 +23,13 @@ from lwbench.synthetic import check_frames, tunnel_scan
 
 from .base import check, fail
 
-__all__ = ["check_metric_declared", "check_metric_deterministic", "check_metric_values", "kit_drive"]
+__all__ = [
+    "check_metric_declared",
+    "check_metric_deterministic",
+    "check_metric_streams",
+    "check_metric_values",
+    "kit_drive",
+]
 
 
 class _KitDrive(Dataset):
@@ -138,3 +145,70 @@ def check_metric_deterministic(metric_cls, params: dict | None = None) -> None:
         differ = sorted(k for k in set(a) | set(b) if not _same(a.get(k), b.get(k)))
         if differ:
             fail("deterministic", f"{label}: two computations differ in {differ}")
+
+
+class _LoopDrive(Dataset):
+    """``n`` tunnel scans driven back and forth over the same 1.5 m (four poses, repeated): the
+    area stays the same however many frames there are, so a metric whose memory follows the area
+    (a voxel map) uses the same at every length, and one that keeps scans grows with ``n``."""
+
+    name = "lwbench-kit-loop"
+
+    def __init__(self, n: int) -> None:
+        super().__init__()
+        self.n = n
+        self.scan = tunnel_scan(seed=7)
+
+    def __len__(self) -> int:
+        return self.n
+
+    def pose(self, index: int) -> np.ndarray:
+        pose = np.eye(4)
+        pose[0, 3] = 0.5 * (index % 4)
+        return pose
+
+    def frame(self, index: int) -> Frame:
+        return Frame(self.scan.points.copy(), self.scan.sensor, index=index, pose=self.pose(index),
+                     timestamp=0.25 * index)
+
+    @property
+    def has_poses(self) -> bool:
+        return True
+
+
+def _peak_bytes(metric_cls, params: dict | None, n: int) -> tuple[int, int]:
+    """(peak traced bytes of one ``compute`` over an ``n``-frame loop drive, bytes of one scan)."""
+    drive = _LoopDrive(n)
+    scan = drive.scan.points
+
+    def decode(position: int) -> np.ndarray:
+        return scan.copy()  # a fresh array per access, as a decoder returns
+
+    metric = metric_cls(**dict(params or {}))
+    seq = SequenceEvaluation(drive, list(range(n)), decode, "lwbench-kit", {})
+    tracemalloc.start()
+    try:
+        metric.compute(seq)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    return peak, scan.nbytes
+
+
+def _not_sequence(metric_cls) -> str:
+    return "" if issubclass(metric_cls, SequenceMetric) else "a frame metric sees one frame at a time"
+
+
+@check("streams", "metric", skip=_not_sequence)
+def check_metric_streams(metric_cls, params: dict | None = None) -> None:
+    """A sequence metric's memory does not grow with the number of frames: on a drive that stays
+    in one place, 16 frames may take no more than 4 frames do plus four scans' worth (a metric
+    that keeps the decoded scans -- ``list(seq.decoded)`` -- grows by twelve). What Python and
+    NumPy allocate is counted (tracemalloc), so memory a native library keeps is not."""
+    _peak_bytes(metric_cls, params, 4)  # first use: imports, caches
+    short, one = _peak_bytes(metric_cls, params, 4)
+    long, _ = _peak_bytes(metric_cls, params, 16)
+    if long - short > 4 * one:
+        fail("streams", f"peak memory {short / 2**20:.1f} MiB over 4 frames, {long / 2**20:.1f} MiB over 16 frames "
+                        f"of the same place ({(long - short) / one:.0f} scans' worth more): a sequence metric must "
+                        "read seq.steps() and keep what grows with the area, not the frames")
