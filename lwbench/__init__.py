@@ -63,7 +63,15 @@ from lwbench.noise_floor import (
     scan_floor,
     step_for_rmsd,
 )
-from lwbench.occupancy import OCCUPANCY_PARAMS, OccupancyMap, compare_occupancy, occupancy_maps, occupied_voxels
+from lwbench.occupancy import (
+    OCCUPANCY_PARAMS,
+    OccupancyMap,
+    compare_occupancy,
+    occupancy_maps,
+    occupancy_scores,
+    occupancy_tiles,
+    occupied_voxels,
+)
 from lwbench.parallel import thread_budget
 from lwbench.params import Param
 from lwbench.payload import Payload
@@ -81,6 +89,7 @@ from lwbench.selector_diagnostics import (
     top_k_precision,
 )
 from lwbench.sensor import SENSOR_PRESETS, RangeImage, SensorModel, get_sensor, register_sensor
+from lwbench.tiles import TILE_M, SpillingTiles, split_by_tile, tiles_near
 from lwbench.version import __version__
 
 __all__ = [
@@ -130,6 +139,12 @@ __all__ = [
     "OCCUPANCY_PARAMS",
     "OccupancyMap",
     "occupancy_maps",
+    "SpillingTiles",
+    "TILE_M",
+    "split_by_tile",
+    "tiles_near",
+    "occupancy_scores",
+    "occupancy_tiles",
     "occupied_voxels",
     "open_dataset",
     "pack_points",

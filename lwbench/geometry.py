@@ -26,6 +26,7 @@ __all__ = [
     "unit_directions",
     "vec_to_pose",
     "voxel_centres",
+    "voxel_indices",
     "voxel_key_range_x",
     "voxel_keys",
 ]
@@ -67,6 +68,14 @@ def voxel_keys(points: np.ndarray, size: float, *, anchor: str = "world") -> np.
         _, rank = np.unique(ijk.T, axis=0, return_inverse=True)
         return rank.reshape(-1).astype(np.int64)
     return (ijk[0] * dims[1] + ijk[1]) * dims[2] + ijk[2]
+
+
+def voxel_indices(keys: np.ndarray) -> np.ndarray:
+    """Integer voxel indices ``(N, 3)`` of world voxel keys: ``floor(p / size)`` of the points
+    :func:`voxel_keys` was given (the inverse of its packing)."""
+    k = np.asarray(keys, dtype=np.int64)
+    idx = np.stack([(k >> (2 * VOXEL_KEY_BITS)) & _MASK, (k >> VOXEL_KEY_BITS) & _MASK, k & _MASK], axis=1)
+    return idx - _OFFSET
 
 
 def voxel_centres(keys: np.ndarray, size: float) -> np.ndarray:

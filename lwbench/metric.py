@@ -221,12 +221,14 @@ class SequenceEvaluation:
         seed: int = 0,
         _cache: dict[str, Any] | None = None,
         on_step: StepReporter | None = None,
+        files: Any = None,
     ) -> None:
         self.dataset = dataset
         self.frame_indices = list(frame_indices)
         self.codec_name, self.params, self.seed = codec_name, params, seed
         self._cache: dict[str, Any] = {} if _cache is None else _cache
         self.on_step = on_step
+        self._files = files  # a lwbench.artifacts.CloudFiles every task of the run reads, or None
         if callable(decoded):
             self._decode = decoded
         else:
@@ -280,6 +282,28 @@ class SequenceEvaluation:
             yield SequenceStep(p, self.frame_indices[p], frame.points, poses[p], self.dataset)
         if self.on_step is not None:
             self.on_step(what, n, n)
+
+    def keep(self, array: np.ndarray) -> str:
+        """Keep an array where every task of this run can read it back (:meth:`fetch`), and
+        return its name: a file beside the results store (content-addressed), or -- a store in
+        memory -- this run's cache. For what a :meth:`cached` value should refer to rather than
+        hold: the original occupancy map of a long drive is tiles of keys, not one array."""
+        from lwbench.artifacts import digest_of
+
+        if self._files is not None:
+            return self._files.put(array)
+        name = digest_of(array)
+        self._cache[f"kept:{name}"] = np.asarray(array)
+        return name
+
+    def fetch(self, name: str) -> np.ndarray:
+        """An array :meth:`keep` kept (``KeyError`` if it is gone)."""
+        if self._files is not None:
+            array = self._files.get(name)
+            if array is None:
+                raise KeyError(f"kept array {name} is gone from {self._files.folder}")
+            return array
+        return self._cache[f"kept:{name}"]
 
     def cached(self, key: str, compute: Callable[[], Any]) -> Any:
         """An intermediate that depends only on the original scans (and ``key``). Values must

@@ -34,7 +34,15 @@ import numpy as np
 from lwbench.geometry import rotate, voxel_centres, voxel_key_range_x, voxel_keys
 from lwbench.sensor import SensorModel
 
-__all__ = ["OCCUPANCY_PARAMS", "OccupancyMap", "occupancy_maps", "occupied_voxels", "compare_occupancy"]
+__all__ = [
+    "OCCUPANCY_PARAMS",
+    "OccupancyMap",
+    "compare_occupancy",
+    "occupancy_maps",
+    "occupancy_scores",
+    "occupancy_tiles",
+    "occupied_voxels",
+]
 
 OCCUPANCY_PARAMS: dict[str, Any] = {
     "resolutions": (0.2, 0.05),  # m; the unsuffixed ids use the first
@@ -148,6 +156,88 @@ class _KeyCounts:
 ScanPasses = Callable[[str], Iterable[tuple[np.ndarray, np.ndarray]]]
 
 
+class _CandidateTile:
+    """One tile's candidate voxels: how often each was hit (pass 1), then missed (pass 2)."""
+
+    def __init__(self, keys: np.ndarray | None = None, hits: np.ndarray | None = None,
+                 misses: np.ndarray | None = None) -> None:
+        self.counts = _KeyCounts()
+        if keys is not None:
+            self.counts.keys, self.counts.counts = keys, hits
+        self.misses = misses
+
+    def nbytes(self) -> int:
+        c = self.counts
+        return c.keys.nbytes + c.counts.nbytes + 8 * c._n + (0 if self.misses is None else self.misses.nbytes)
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        keys, hits = self.counts.fold()
+        out = {"keys": keys, "hits": hits}
+        if self.misses is not None:
+            out["misses"] = self.misses
+        return out
+
+    @classmethod
+    def load(cls, arrays: dict[str, np.ndarray]) -> _CandidateTile:
+        return cls(arrays["keys"], arrays["hits"], arrays.get("misses"))
+
+
+def occupancy_tiles(
+    scans: ScanPasses,
+    sensor: SensorModel,
+    emit: Callable[[float, int, np.ndarray], None],
+    resolutions: tuple[float, ...] = OCCUPANCY_PARAMS["resolutions"],
+    l_hit: float = OCCUPANCY_PARAMS["l_hit"],
+    l_miss: float = OCCUPANCY_PARAMS["l_miss"],
+    max_range: float = OCCUPANCY_PARAMS["max_range"],
+) -> None:
+    """The log-odds map of a sequence read as a stream, given tile by tile: ``emit(voxel, tile,
+    occupied keys)`` for every tile (:mod:`lwbench.tiles`) at every resolution.
+
+    ``scans(what)`` is one pass over ``(scan, pose)`` pairs in order (a generator: none is
+    kept). Two passes: the first counts each voxel's hits (every voxel ever hit is a candidate),
+    the second counts, per scan, the candidates its rays pass through -- what one scan's rays
+    say depends on no other scan. A scan reaches only the tiles within ``max_range`` of its
+    origin; the others wait on disk (:class:`~lwbench.tiles.SpillingTiles`), so memory is a few
+    tiles whatever the length of the drive. Exact: integer counts, the same as one map's.
+    """
+    from lwbench.tiles import SpillingTiles, split_by_tile, tiles_near
+
+    maps = {v: SpillingTiles(_CandidateTile, _CandidateTile.load, name=f"occupancy-{v:g}") for v in resolutions}
+    try:
+        for scan, pose in scans("occupancy hits"):
+            pose = np.asarray(pose, dtype=np.float64)
+            for v, tiles in maps.items():
+                for tile, (keys,) in split_by_tile(_hit_keys(scan, pose, v, max_range), v):
+                    tiles.get(tile).counts.add(keys)
+                tiles.settle()
+        for scan, pose in scans("occupancy free space"):
+            pose = np.asarray(pose, dtype=np.float64)
+            rays = None
+            for v, tiles in maps.items():
+                hk = _hit_keys(scan, pose, v, max_range)
+                rays = _scan_rays(scan, pose, sensor, max_range, hk) if rays is None else replace(rays, hit_keys=hk)
+                if rays is None:
+                    break
+                for tile in tiles_near(rays.origin, rays.reach + v, v):
+                    cand = tiles.get(tile, create=False)
+                    if cand is None:
+                        continue
+                    keys, _ = cand.counts.fold()
+                    if cand.misses is None:
+                        cand.misses = np.zeros(len(keys), dtype=np.int64)
+                    cand.misses[_misses(keys, rays, sensor, v)] += 1
+                tiles.settle()
+        for v, tiles in maps.items():
+            for tile, cand in tiles.drain():
+                keys, hits = cand.counts.fold()
+                misses = cand.misses if cand.misses is not None else np.zeros(len(keys), dtype=np.int64)
+                emit(v, tile, keys[hits * l_hit + misses * l_miss > 0])
+    finally:
+        for tiles in maps.values():
+            tiles.close()
+
+
 def occupancy_maps(
     scans: ScanPasses,
     sensor: SensorModel,
@@ -156,39 +246,12 @@ def occupancy_maps(
     l_miss: float = OCCUPANCY_PARAMS["l_miss"],
     max_range: float = OCCUPANCY_PARAMS["max_range"],
 ) -> dict[float, np.ndarray]:
-    """:func:`occupied_voxels` at every resolution, reading the sequence as a stream.
-
-    ``scans(what)`` is one pass over ``(scan, pose)`` pairs in order (a generator: none is
-    kept). Two passes: the first counts each voxel's hits (every voxel ever hit is a candidate),
-    the second counts, per scan, the candidates its rays pass through -- what one scan's rays
-    say depends on no other scan, so nothing of a scan outlives its turn. Memory follows the
-    candidate voxels (the area covered), not the number of scans. Exact: integer counts.
-    """
-    counts = {v: _KeyCounts() for v in resolutions}
-    for scan, pose in scans("occupancy hits"):
-        pose = np.asarray(pose, dtype=np.float64)
-        for v in resolutions:
-            counts[v].add(_hit_keys(scan, pose, v, max_range))
-    cand = {v: counts[v].fold() for v in resolutions}
-    del counts
-    misses = {v: np.zeros(len(cand[v][0]), dtype=np.int64) for v in resolutions}
-    for scan, pose in scans("occupancy free space"):
-        pose = np.asarray(pose, dtype=np.float64)
-        rays = None
-        for v in resolutions:
-            keys = cand[v][0]
-            if len(keys) == 0:
-                continue
-            hk = _hit_keys(scan, pose, v, max_range)
-            rays = _scan_rays(scan, pose, sensor, max_range, hk) if rays is None else replace(rays, hit_keys=hk)
-            if rays is None:
-                break
-            misses[v][_misses(keys, rays, sensor, v)] += 1
-    out = {}
-    for v in resolutions:
-        keys, hits = cand[v]
-        out[v] = keys[hits * l_hit + misses[v] * l_miss > 0]
-    return out
+    """:func:`occupancy_tiles` gathered into one sorted key array per resolution (the whole map
+    in memory: for a drive that fits; a metric over a long drive compares tile by tile)."""
+    parts: dict[float, list[np.ndarray]] = {v: [] for v in resolutions}
+    occupancy_tiles(scans, sensor, lambda v, tile, keys: parts[v].append(keys), resolutions, l_hit, l_miss,
+                    max_range)
+    return {v: np.sort(np.concatenate(p)) if p else np.zeros(0, dtype=np.int64) for v, p in parts.items()}
 
 
 def occupied_voxels(
@@ -263,9 +326,15 @@ class OccupancyMap:
 def compare_occupancy(original: np.ndarray, decoded: np.ndarray) -> dict[str, float | None]:
     """IoU, precision and recall of the decoded occupied set against the original one."""
     inter = len(np.intersect1d(original, decoded, assume_unique=True))
-    union = len(original) + len(decoded) - inter
+    return occupancy_scores(len(original), len(decoded), inter)
+
+
+def occupancy_scores(n_original: int, n_decoded: int, common: int) -> dict[str, float | None]:
+    """IoU, precision and recall from the sizes of the two occupied sets and of their
+    intersection (what a tile-by-tile comparison adds up)."""
+    union = n_original + n_decoded - common
     return {
-        "iou": inter / union if union else None,
-        "precision": inter / len(decoded) if len(decoded) else None,
-        "recall": inter / len(original) if len(original) else None,
+        "iou": common / union if union else None,
+        "precision": common / n_decoded if n_decoded else None,
+        "recall": common / n_original if n_original else None,
     }

@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from lwbench_metrics.trajectory import absolute_errors, error_statistics, relative_errors
 
-from lwbench import import_open3d
+from lwbench import SpillingTiles, import_open3d, split_by_tile, tiles_near
 from lwbench.geometry import transform, voxel_keys
 
 if TYPE_CHECKING:
@@ -104,103 +104,164 @@ def scan_voxels(scan: np.ndarray, pose: np.ndarray, voxel: float) -> tuple[np.nd
     return k, sums, c
 
 
-class MapBuilder:
-    """The voxel-centroid map, built one scan at a time: memory grows with the voxels (the area
-    covered), not with the scans.
+class _MapTile:
+    """One tile of the map: per voxel, the coordinate sums and counts (running, plus scans that
+    wait to be folded in), and once the map is finished the normals."""
 
-    Scans wait in a buffer, folded into the running sums once it holds as many voxel entries as
-    the map (at least ``least``): memory stays within about twice the map. A fold lists the
-    running sums first and then each buffered scan in order, so every voxel's sum is added up in
-    scan order -- bit for bit what one ``bincount`` over all scans gives (``0 + x == x``): the map
-    does not depend on how the drive was cut into folds."""
-
-    def __init__(self, voxel: float, least: int = 1 << 15) -> None:
-        self.voxel, self.least = voxel, least
-        self.keys = np.zeros(0, np.int64)
-        self.sums = np.zeros((0, 3))
-        self.counts = np.zeros(0, np.int64)
+    def __init__(self, keys=None, sums=None, counts=None, normals=None, least: int = 1 << 14) -> None:
+        self.keys = np.zeros(0, np.int64) if keys is None else keys
+        self.sums = np.zeros((0, 3)) if sums is None else sums
+        self.counts = np.zeros(0, np.int64) if counts is None else counts
+        self.normals = normals
         self._pending: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
-        self._pending_n = 0
+        self._pending_n, self._least = 0, least
 
-    def add(self, scan: np.ndarray, pose: np.ndarray) -> None:
-        k, sums, c = scan_voxels(scan, pose, self.voxel)
-        if len(k):
-            self._pending.append((k, sums, c))
-            self._pending_n += len(k)
-            if self._pending_n >= max(len(self.keys), self.least):
-                self._fold()
+    def add(self, keys: np.ndarray, sums: np.ndarray, counts: np.ndarray) -> None:
+        self._pending.append((keys, sums, counts))
+        self._pending_n += len(keys)
+        if self._pending_n >= max(len(self.keys), self._least):
+            self.fold()
 
-    def _fold(self) -> None:
+    def fold(self) -> None:
+        """Fold the waiting scans in: the running sums first, then each scan in order, so every
+        voxel's sum is added up in scan order -- bit for bit what one ``bincount`` over all scans
+        gives (``0 + x == x``), however the drive was cut into folds and tiles."""
         if not self._pending:
             return
         parts = [(self.keys, self.sums, self.counts), *self._pending]
         uniq, rows = np.unique(np.concatenate([p[0] for p in parts]), return_inverse=True)
         sums_all = np.concatenate([p[1] for p in parts])
-        self.sums = np.stack(
-            [np.bincount(rows, weights=sums_all[:, j], minlength=len(uniq)) for j in range(3)], axis=1
-        )
+        self.sums = np.stack([np.bincount(rows, weights=sums_all[:, j], minlength=len(uniq)) for j in range(3)], axis=1)
         self.counts = np.bincount(rows, weights=np.concatenate([p[2] for p in parts]),
                                   minlength=len(uniq)).astype(np.int64)
         self.keys = uniq
         self._pending, self._pending_n = [], 0
 
+    def centroids(self) -> np.ndarray:
+        return self.sums / np.maximum(self.counts, 1)[:, None]
+
+    def nbytes(self) -> int:
+        held = self.keys.nbytes + self.sums.nbytes + self.counts.nbytes + 40 * self._pending_n
+        return held + (0 if self.normals is None else self.normals.nbytes)
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        self.fold()
+        out = {"keys": self.keys, "sums": self.sums, "counts": self.counts}
+        if self.normals is not None:
+            out["normals"] = self.normals
+        return out
+
+    @classmethod
+    def load(cls, arrays: dict[str, np.ndarray]) -> _MapTile:
+        return cls(arrays["keys"], arrays["sums"], arrays["counts"], arrays.get("normals"))
+
+
+class MapBuilder:
+    """The voxel-centroid map, built one scan at a time, in tiles (:mod:`lwbench.tiles`): the
+    tiles the route is near stay in memory, the others wait on disk, so memory does not grow
+    with the drive."""
+
+    def __init__(self, voxel: float, budget: int | None = None) -> None:
+        self.voxel = voxel
+        self.tiles: SpillingTiles[_MapTile] = SpillingTiles(_MapTile, _MapTile.load, budget, name="map")
+
+    def add(self, scan: np.ndarray, pose: np.ndarray) -> None:
+        k, sums, c = scan_voxels(scan, pose, self.voxel)
+        for tile, (kk, ss, cc) in split_by_tile(k, self.voxel, sums, c):
+            self.tiles.get(tile).add(kk, ss, cc)
+        self.tiles.settle()
+
     def finish(self, params: dict[str, Any]) -> VoxelMap:
-        """The map, with normals estimated once on the whole of it."""
-        self._fold()
-        centroids = self.sums / np.maximum(self.counts, 1)[:, None]
-        if len(self.keys):
-            pc = _with_normals(_cloud(centroids), params)
-            normals = np.asarray(pc.normals) if pc.has_normals() else np.zeros((len(self.keys), 3))
-        else:
-            normals = np.zeros((0, 3))
-        return VoxelMap(self.keys, self.sums, self.counts, normals, self.voxel)
+        """The map, with normals: each tile's estimated with its neighbours' voxels within the
+        normal radius beside it -- the neighbourhoods a whole-map estimate would search."""
+        radius = float(params["normal_radius"])
+        n = 0
+        for tile in self.tiles.tiles():
+            here = self.tiles.get(tile, create=False)
+            here.fold()
+            n += len(here.keys)
+            pts = here.centroids()
+            if len(pts) == 0:
+                here.normals = np.zeros((0, 3))
+                continue
+            lo, hi = pts.min(axis=0) - radius, pts.max(axis=0) + radius
+            halo = [pts]
+            for other in self.tiles.neighbours(tile):
+                near = self.tiles.get(other, create=False)
+                if near is None:
+                    continue
+                near.fold()
+                c = near.centroids()
+                inside = np.all((c >= lo) & (c <= hi), axis=1)
+                halo.append(c[inside])
+            here = self.tiles.get(tile, create=False)  # a neighbour's read may have written it out
+            cloud = _with_normals(_cloud(np.concatenate(halo)), params)
+            normals = np.asarray(cloud.normals) if cloud.has_normals() else np.zeros((len(pts), 3))
+            here.normals = normals[: len(pts)]
+            self.tiles.settle()
+        return VoxelMap(self.tiles, self.voxel, n)
 
 
 @dataclass
 class VoxelMap:
-    """Scans at their ground-truth poses, one centroid per voxel (the grid filter), with normals.
+    """Scans at their ground-truth poses, one centroid per voxel (the grid filter), with normals,
+    in tiles (most of a long drive's map on disk).
 
     :meth:`cloud` gives ICP its target: the map around a pose (a ball that holds every point a
     correspondence gate can reach from there, so the registration is the one against the whole
     map), optionally without one scan's points (leave-one-out: that scan's voxel sums, recomputed
-    from the scan, are subtracted). Normals are the whole map's."""
+    from the scan, are subtracted). Normals are the whole map's. :meth:`close` removes the tiles
+    written to disk."""
 
-    keys: np.ndarray  # (M,) sorted voxel keys
-    sums: np.ndarray  # (M, 3) float64
-    counts: np.ndarray  # (M,) int64
-    normals: np.ndarray  # (M, 3)
-    voxel: float = 0.2
-    _tree: Any = None
+    tiles: SpillingTiles[_MapTile]
+    voxel: float
+    n_voxels: int
 
     def __len__(self) -> int:
-        return len(self.counts)
+        return self.n_voxels
 
-    def _around(self, centre: np.ndarray, radius: float) -> np.ndarray:
-        if self._tree is None:
-            from scipy.spatial import cKDTree
-
-            self._tree = cKDTree(self.sums / np.maximum(self.counts, 1)[:, None])
-        return np.sort(np.asarray(self._tree.query_ball_point(centre, radius), dtype=np.int64))
+    def _rows(self, around: tuple[np.ndarray, float] | None):
+        """Keys, sums, counts and normals of the voxels whose centroid is within ``around``
+        (every voxel when ``None``), in key order."""
+        if around is None:
+            chosen = self.tiles.tiles()
+        else:
+            centre, radius = np.asarray(around[0], dtype=np.float64), float(around[1])
+            chosen = [t for t in tiles_near(centre, radius, self.voxel) if t in self.tiles]
+        parts = []
+        for tile in chosen:
+            item = self.tiles.get(tile, create=False)
+            rows = slice(None)
+            if around is not None:
+                d = item.centroids() - centre
+                rows = np.einsum("ij,ij->i", d, d) <= radius * radius
+            parts.append((item.keys[rows], item.sums[rows], item.counts[rows], item.normals[rows]))
+        self.tiles.settle()
+        if not parts:
+            return np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros((0, 3))
+        keys, sums, counts, normals = (np.concatenate(p) for p in zip(*parts, strict=True))
+        order = np.argsort(keys, kind="stable")
+        return keys[order], sums[order], counts[order], normals[order]
 
     def cloud(self, without: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
               around: tuple[np.ndarray, float] | None = None) -> o3d.geometry.PointCloud:
         """The map as an Open3D cloud with normals: within ``around = (centre, radius)`` when
         given, less ``without = scan_voxels(...)`` of one scan when given."""
-        rows = np.arange(len(self.counts)) if around is None else self._around(*around)
-        sums, counts = self.sums[rows], self.counts[rows]
-        if without is not None and len(without[0]) and len(rows):
+        keys, sums, counts, normals = self._rows(around)
+        if without is not None and len(without[0]) and len(keys):
             k, s, c = without
-            at = np.searchsorted(self.keys, k)
-            ok = (at < len(self.keys)) & (self.keys[np.minimum(at, len(self.keys) - 1)] == k)
-            pos = np.searchsorted(rows, at[ok])
-            inside = (pos < len(rows)) & (rows[np.minimum(pos, len(rows) - 1)] == at[ok])
+            at = np.searchsorted(keys, k)
+            ok = (at < len(keys)) & (keys[np.minimum(at, len(keys) - 1)] == k)
             sums, counts = sums.copy(), counts.copy()
-            sums[pos[inside]] -= s[ok][inside]
-            counts[pos[inside]] -= c[ok][inside]
+            sums[at[ok]] -= s[ok]
+            counts[at[ok]] -= c[ok]
         keep = counts > 0
         pc = _cloud(sums[keep] / counts[keep, None])
-        pc.normals = import_open3d().utility.Vector3dVector(self.normals[rows][keep])
+        pc.normals = import_open3d().utility.Vector3dVector(normals[keep])
         return pc
+
+    def close(self) -> None:
+        self.tiles.close()
 
 
 def build_map(scans: Iterable[np.ndarray], poses: np.ndarray, params: dict[str, Any] = ICP_PARAMS) -> VoxelMap:

@@ -32,9 +32,9 @@ from lwbench import (
     MetricId,
     SequenceEvaluation,
     SequenceMetric,
-    compare_occupancy,
     hookimpl,
-    occupancy_maps,
+    occupancy_scores,
+    occupancy_tiles,
 )
 
 __all__ = [
@@ -114,10 +114,13 @@ class LocalizationMetric(SequenceMetric):
         everything = list(range(len(gt)))
         mapping, tracking = drives if drives is not None else (everything, everything)
         world_map = build_map((s.decoded for s in passes(mapping, "map")), gt[mapping], self.settings)
-        # With two drives the map holds none of the tracked scans: nothing to leave out.
-        settings = self.settings if drives is None else {**self.settings, "leave_one_out": False}
-        scans = (s.decoded for s in passes(tracking, "tracking"))
-        track = track_against_map(scans, gt[tracking][0], world_map, settings, poses=gt[tracking])
+        try:
+            # With two drives the map holds none of the tracked scans: nothing to leave out.
+            settings = self.settings if drives is None else {**self.settings, "leave_one_out": False}
+            scans = (s.decoded for s in passes(tracking, "tracking"))
+            track = track_against_map(scans, gt[tracking][0], world_map, settings, poses=gt[tracking])
+        finally:
+            world_map.close()  # the tiles it wrote to disk
         return world_map, track, tracking
 
     def compute(self, seq: SequenceEvaluation) -> dict[str, float | None]:
@@ -196,18 +199,36 @@ class OccupancyMetric(SequenceMetric):
         p = self.settings
         resolutions = tuple(p["resolutions"])
 
-        def maps(passes) -> dict[float, np.ndarray]:
+        def tiles(passes, emit) -> None:
             def scans(what):
-                return ((s.decoded, s.pose) for s in passes(None, what))
+                return ((s.decoded, s.pose) for s in passes(what=what))
 
-            return occupancy_maps(scans, sensor, resolutions, p["l_hit"], p["l_miss"], p["max_range"])
+            occupancy_tiles(scans, sensor, emit, resolutions, p["l_hit"], p["l_miss"], p["max_range"])
 
-        key = f"original_occupancy:{resolutions}:{p['l_hit']}:{p['l_miss']}:{p['max_range']}"
-        ref = seq.cached(key, lambda: maps(seq.originals))
-        dec = maps(seq.steps)
+        def original_map() -> dict[float, dict[int, tuple[str, int]]]:
+            # The original map, tile by tile, kept as files every configuration's task reads.
+            out: dict[float, dict[int, tuple[str, int]]] = {v: {} for v in resolutions}
+            def keep(v: float, tile: int, keys: np.ndarray) -> None:
+                out[v][tile] = (seq.keep(keys), len(keys))
+
+            tiles(lambda what: seq.originals(what=f"originals {what}"), keep)
+            return out
+
+        key = f"original_occupancy_tiles:{resolutions}:{p['l_hit']}:{p['l_miss']}:{p['max_range']}"
+        ref = seq.cached(key, original_map)
+        common = {v: 0 for v in resolutions}
+        decoded = {v: 0 for v in resolutions}
+
+        def compare(v: float, tile: int, keys: np.ndarray) -> None:
+            decoded[v] += len(keys)
+            if tile in ref[v] and len(keys):
+                common[v] += len(np.intersect1d(seq.fetch(ref[v][tile][0]), keys, assume_unique=True))
+
+        tiles(seq.steps, compare)
         out: dict[str, float | None] = {}
         for i, v in enumerate(resolutions):
-            for name, value in compare_occupancy(ref[v], dec[v]).items():
+            original = sum(n for _, n in ref[v].values())
+            for name, value in occupancy_scores(original, decoded[v], common[v]).items():
                 out[f"occ_{name}{_suffix(v, i == 0)}"] = value
         return out
 

@@ -36,7 +36,9 @@ from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from multiprocessing.connection import wait
+from pathlib import Path
 
+from lwbench.artifacts import CloudFiles
 from lwbench.dataset import Dataset
 from lwbench.errors import LwbenchError, MissingDependencyError, WorkerError
 from lwbench.measure import Stopwatch
@@ -46,7 +48,7 @@ from lwbench.sandbox import Sandbox, SandboxError, cap_memory, enter_child, how_
 
 from .evaluate import Evaluator, FrameResult, decoded_cloud
 from .plan import CodecConfig, DatasetSpec
-from .sequence import SequenceResult, SequenceTask, Throttle, failed_result
+from .tasks import FrameTask, Result, SequenceResult, SequenceTask, Task, Throttle, failed_result
 
 __all__ = [
     "DEFAULT_TIMEOUT_S",
@@ -67,36 +69,6 @@ PRELOAD = ("open3d", "scipy.spatial", "torch")
 _MEMORY_MARKERS = ("MemoryError", "can't allocate memory", "Cannot allocate memory")
 
 
-@dataclass(frozen=True)
-class FrameTask:
-    """One frame and the configurations to evaluate on it (they share its k-d trees);
-    ``keep_decoded``: return the decoded clouds (a report's gallery), ``keep_payload``: the
-    payloads (the sequence stage re-decodes them)."""
-
-    dataset: DatasetSpec
-    frame: int
-    configs: tuple[CodecConfig, ...]
-    keep_decoded: bool = False
-    keep_payload: bool = False
-
-    @property
-    def label(self) -> str:
-        return f"frame {self.frame}"
-
-    def failure(self, config: CodecConfig, exc: BaseException, extra: dict | None = None) -> FrameResult:
-        return FrameResult.failure(self.frame, config, exc, extra)
-
-    def split(self) -> list[FrameTask]:
-        """One task per configuration (a Ray task each)."""
-        return [FrameTask(self.dataset, self.frame, (c,), self.keep_decoded, self.keep_payload) for c in self.configs]
-
-    def rest(self, configs: tuple[CodecConfig, ...]) -> FrameTask | None:
-        """The same task for the ``configs`` not done yet (a lost worker's remainder)."""
-        return FrameTask(self.dataset, self.frame, configs, self.keep_decoded, self.keep_payload) if configs else None
-
-
-Task = FrameTask | SequenceTask
-Result = FrameResult | SequenceResult
 
 
 class Worker:
@@ -159,8 +131,9 @@ def run_sequence_task(worker: Worker, task: SequenceTask,
         cache = dict(task.shared)
         before = set(cache)
         report = None if on_progress is None else Throttle(lambda what, k, n: on_progress(task, what, k, n))
+        files = None if task.payloads.folder is None else CloudFiles(Path(task.payloads.folder))
         seq = SequenceEvaluation(dataset, list(task.frame_indices), decode, task.config.name, task.config.params,
-                                 task.seed, _cache=cache, on_step=report)
+                                 task.seed, _cache=cache, on_step=report, files=files)
         watch = Stopwatch()
         with watch.time("metric_ms"):
             values = metric.compute(seq)

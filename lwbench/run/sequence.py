@@ -18,118 +18,20 @@ stage) is re-evaluated through the same executor, with its payload kept, and rec
 
 from __future__ import annotations
 
-import time
-import traceback
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
-from lwbench.artifacts import CloudFiles
 from lwbench.dataset import Dataset
-from lwbench.errors import LwbenchError, StoreError
+from lwbench.errors import LwbenchError
 from lwbench.metric import SequenceMetric
 from lwbench.store import ResultRow, ResultStore
 
 from .plan import CodecConfig, DatasetSpec
 from .record import PAYLOAD, RowFactory, record_frame
+from .tasks import FrameTask, PayloadRefs, SequenceTask
 
-__all__ = ["PayloadRefs", "SequenceResult", "SequenceStage", "SequenceTask"]
-
-#: How often a worker reports a sequence task's progress (and so proves it is alive), seconds.
-PROGRESS_EVERY_S = 1.0
-
-
-@dataclass(frozen=True)
-class PayloadRefs:
-    """A configuration's payloads, frame by frame: files beside the store named by digest (what a
-    worker process reads, no store needed), or the bytes themselves (an in-memory store)."""
-
-    folder: str | None
-    digests: tuple[str, ...] = ()
-    inline: tuple[bytes, ...] = ()
-
-    def __len__(self) -> int:
-        return len(self.digests) if self.folder is not None else len(self.inline)
-
-    def get(self, position: int) -> bytes:
-        if self.folder is None:
-            return self.inline[position]
-        array = CloudFiles(Path(self.folder)).get(self.digests[position])
-        if array is None:
-            raise StoreError(f"the payload file {self.digests[position]} is gone from {self.folder}")
-        return array.tobytes()
-
-
-@dataclass
-class SequenceResult:
-    """The outcome of one (configuration, sequence metric): values, or the error that stopped it;
-    ``shared``: the cache entries it computed on the originals (for the metric's other tasks)."""
-
-    config: CodecConfig
-    metric: str
-    status: str
-    metrics: dict[str, float | None] = field(default_factory=dict)
-    extra: dict[str, Any] = field(default_factory=dict)
-    error: str | None = None
-    shared: dict[str, Any] = field(default_factory=dict)
-    frame: int = -1
-
-
-@dataclass(frozen=True)
-class SequenceTask:
-    """One sequence metric over one configuration's frames (see the module docstring)."""
-
-    dataset: DatasetSpec
-    config: CodecConfig
-    metric: str
-    frame_indices: tuple[int, ...]
-    seed: int
-    payloads: PayloadRefs
-    shared: dict[str, Any] = field(default_factory=dict, hash=False, compare=False)
-
-    frame = -1  # the executors' bookkeeping: not a frame
-    keep_decoded = False
-
-    @property
-    def configs(self) -> tuple[CodecConfig, ...]:
-        return (self.config,)
-
-    @property
-    def label(self) -> str:
-        return f"{self.config.label} · {self.metric}"
-
-    def failure(self, config: CodecConfig, exc: BaseException, extra: dict | None = None) -> SequenceResult:
-        return SequenceResult(config, self.metric, "failed", extra=extra or {}, error=f"{type(exc).__name__}: {exc}")
-
-    def split(self) -> list[SequenceTask]:
-        return [self]
-
-    def rest(self, configs: tuple[CodecConfig, ...]) -> SequenceTask | None:
-        return None  # one configuration: nothing is left when it is lost
-
-
-def failed_result(task: SequenceTask, exc: BaseException) -> SequenceResult:
-    out = task.failure(task.config, exc)
-    out.extra["traceback"] = traceback.format_exc(limit=6)
-    return out
-
-
-class Throttle:
-    """Calls ``report(what, done, total)`` at most every ``every_s`` seconds (and at a pass's end)."""
-
-    def __init__(self, report: Callable[[str, int, int], None], every_s: float = PROGRESS_EVERY_S) -> None:
-        self.report, self.every_s, self.last = report, every_s, float("-inf")
-
-    def __call__(self, what: str, done: int, total: int) -> None:
-        now = time.monotonic()
-        if now - self.last >= self.every_s or done >= total:
-            self.last = now
-            self.report(what, done, total)
-
-
-#: Reports a sequence task's progress: (task, what the pass is, frames done, frames in the pass).
-TaskReporter = Callable[[SequenceTask, str, int, int], None]
+__all__ = ["SequenceStage"]
 
 
 @dataclass
@@ -177,8 +79,6 @@ class SequenceStage:
     def _payloads(self, configs: list[CodecConfig], executor) -> dict[str, PayloadRefs | Exception]:
         """Each configuration's payloads; frames without one are re-evaluated (payload kept) and
         recorded first. A configuration with a failed frame gets the error its metrics fail with."""
-        from .execute import FrameTask
-
         lacking = {c.key: self._refs(c)[2] for c in configs}
         tasks = [FrameTask(self.dataset_spec, i, (c,), keep_payload=True) for c in configs for i in lacking[c.key]]
         if tasks:

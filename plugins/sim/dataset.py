@@ -44,7 +44,7 @@ def _world(scene: str, seed: int, day: int, pid: int) -> tuple[Scene, Raycaster]
     return world, Raycaster(world.mesh)
 
 
-_SCENE_CODES = {"tunnel": 1, "urban": 2, "indoor": 3}
+_SCENE_CODES = {"tunnel": 1, "urban": 2, "indoor": 3, "town": 4}
 
 
 def _resolve_sensor(name: str, scene: Scene) -> SensorModel:

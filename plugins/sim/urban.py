@@ -180,10 +180,11 @@ def _buildings(b: MeshBuilder, rng: np.random.Generator, centre: Path, tree: cKD
         b.boxes(np.concatenate(pane_c), np.concatenate(pane_s), np.concatenate(pane_y), GLASS)
 
 
-def _backdrop(b: MeshBuilder, rng: np.random.Generator, centre: Path, tree: cKDTree) -> None:
-    """Plain blocks behind the street front (25-45 m out) and across both ends of the street:
-    a city goes on behind the first row, so rays through alleys and down the street still end on
-    something, as the upper beams of a real urban scan mostly do."""
+def _backdrop(b: MeshBuilder, rng: np.random.Generator, centre: Path, tree: cKDTree, ends: bool = True) -> None:
+    """Plain blocks behind the street front (25-45 m out) and, with ``ends``, across both ends of
+    the street: a city goes on behind the first row, so rays through alleys and down the street
+    still end on something, as the upper beams of a real urban scan mostly do. (The town, whose
+    streets end in crossings, passes ``ends=False``; the end walls draw nothing from ``rng``.)"""
     centres, sizes, yaws, mats = [], [], [], []
     for side in (-1.0, 1.0):
         s = 0.0
@@ -203,7 +204,7 @@ def _backdrop(b: MeshBuilder, rng: np.random.Generator, centre: Path, tree: cKDT
             sizes.append([width, depth, height])
             yaws.append(yaw[0])
             mats.append([rng.uniform(0.25, 0.6), 0.0])
-    for end, sign in ((0.0, -1.0), (centre.length, 1.0)):  # across the street, past each end
+    for end, sign in ((0.0, -1.0), (centre.length, 1.0)) if ends else ():  # across the street, past each end
         t = centre.tangent(np.array([end]))[0]
         pos = centre.position(np.array([end]))[0] + sign * 12.0 * t
         centres.append(pos + [0.0, 0.0, 10.0])
