@@ -113,8 +113,11 @@ def _misses(cand: np.ndarray, rays: _ScanRays, sensor: SensorModel, voxel: float
     # Slab test: where the return's ray enters and leaves the (axis-aligned) voxel.
     u = np.where(np.abs(u) < 1e-9, np.float32(1e-9), u)
     t1, t2 = (rel - half) / u, (rel + half) / u
-    t_in = np.minimum(t1, t2).max(axis=1)
-    t_out = np.maximum(t1, t2).min(axis=1)
+    near, far = np.minimum(t1, t2), np.maximum(t1, t2)
+    # Column by column: numpy's max(axis=1) over three columns is a slow strided reduction
+    # (6.4 of 28.9 s of the occupancy metric on 30 town scans); the values are the same.
+    t_in = np.maximum(np.maximum(near[:, 0], near[:, 1]), near[:, 2])
+    t_out = np.minimum(np.minimum(far[:, 0], far[:, 1]), far[:, 2])
     passed = (t_in <= t_out) & (t_in > 0) & (t_out < rays.ray_range[cell])
     idx = lo + sel[passed]
     hk = rays.hit_keys
