@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import io
 import json
+import re
 import time
 
 from typer.testing import CliRunner
@@ -90,6 +91,10 @@ def test_run_reports_the_frames_and_the_sequence_metrics_off_a_terminal(tmp_path
     assert res.exit_code == 0, res.output
     assert _phases(res.stderr) == ["frames (encode, decode, frame metrics)", "sequence metrics"]
     assert "last: raw frame 0" in res.stderr
+    # Inside the sequence stage: which configuration, metric, pass and frame (issue 31).
+    inside = re.findall(r"lwbench: sequence metrics \d+/3 .*· raw · (\w+) · ([\w ]+) (\d+)/3", res.stderr)
+    assert {m for m, _, _ in inside} == {"localization", "odometry", "occupancy"}, res.stderr[-2000:]
+    assert {"map", "tracking", "occupancy hits", "originals map"} <= {p for _, p, _ in inside}
     assert "lwbench:" not in res.stdout  # stdout is the board
 
 

@@ -15,7 +15,7 @@ from .output import console, escape, progress, writable_folder
 
 @app.command(rich_help_panel=PANEL)
 def simulate(
-    scene: Annotated[str, typer.Argument(help="Scene: tunnel, urban or indoor.")],
+    scene: Annotated[str, typer.Argument(help="Scene: tunnel, urban, indoor or town.")],
     out: Annotated[Path, typer.Option(help="Output folder (KITTI odometry layout).", rich_help_panel=OUTPUT)],
     frames: Frames = None,
     seed: Annotated[int, typer.Option(help="Scene and noise seed.", rich_help_panel=DATA)] = 0,
@@ -34,11 +34,12 @@ def simulate(
     n = min(len(ds), frames) if frames else len(ds)
     with progress() as shown:
         with shown.phase(f"simulating {scene}", n) as phase:
-            scans = []
-            for i in range(n):
-                phase.update(what=f"scan {i}")
-                scans.append(ds[i])
-                phase.advance()
-        with shown.phase(f"writing {out}", 1):
-            write_kitti_sequence(scans, out)
-    console.print(f"wrote {len(scans)} scans of {scene!r} to {escape(str(out))} (run: lwbench run --dataset {out})")
+
+            def scans():
+                for i in range(n):  # each scan written as it is cast, none kept
+                    phase.update(what=f"scan {i}")
+                    yield ds[i]
+                    phase.advance()
+
+            write_kitti_sequence(scans(), out)
+    console.print(f"wrote {n} scans of {scene!r} to {escape(str(out))} (run: lwbench run --dataset {out})")

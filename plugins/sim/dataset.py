@@ -72,7 +72,7 @@ class SimDataset(Dataset):
 
     name = "sim"
     is_default = True
-    description = "built-in LiDAR simulator: tunnel, urban or indoor scene with ground-truth poses"
+    description = "built-in LiDAR simulator: tunnel, urban, indoor or town scene with ground-truth poses"
     params = (
         Param("scene", "str", "tunnel", "procedural scene", choices=tuple(SCENES)),
         Param("sensor", "str", "auto", "auto (the scene's sensor), a preset name or a sensor.json path"),
