@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from _scans import spinning_scan, write_bin
 
-from lwbench import SensorModel, get_sensor, import_open3d
+from lwbench import SensorModel, get_sensor, import_open3d, open_dataset
 from lwbench.errors import DataFormatError, DataWarning, ParameterError
 from lwbench.io import read_kitti_bin, read_point_file, read_pose_file, write_kitti_sequence
 from lwbench.loaders import KittiDataset, PointFileDataset
@@ -325,3 +325,31 @@ def test_a_ring_field_with_placeholders_gives_the_real_table_and_step():
     np.testing.assert_allclose(s.elevations_deg, HDL32_NOMINAL, atol=0.16)  # lasers are up to 0.15 off
     assert s.azimuth_step_deg == pytest.approx(360 / 1086)  # firings from the points per ring
     assert s.min_range > 1.0  # the placeholders (5e-5 m) are no returns
+
+
+def test_a_long_folder_opens_and_gives_its_poses_without_reading_its_scans(tmp_path, monkeypatch):
+    """A 5,000-scan drive is opened by listing it: no scan is read until a frame is asked for,
+    and the sequence metrics' poses come from the poses file (issue 31)."""
+    import lwbench.loaders as loaders
+    from lwbench import Frame
+
+    sensor = get_sensor("vlp16")
+    rng = np.random.default_rng(0)
+
+    def frames():
+        for i in range(5000):
+            pose = np.eye(4)
+            pose[0, 3] = 0.1 * i
+            pts = rng.uniform(-5, 5, (16, 3)).astype(np.float32)
+            yield Frame(pts, sensor, index=i, timestamp=i / 10, pose=pose)
+
+    folder = write_kitti_sequence(frames(), tmp_path / "drive")
+    reads = []
+    for name in ("read_point_file", "read_kitti_bin"):
+        real = getattr(loaders, name)
+        monkeypatch.setattr(loaders, name, lambda *a, _real=real, **k: reads.append(a[0]) or _real(*a, **k))
+    ds = open_dataset(folder)
+    assert len(ds) == 5000 and ds.has_poses
+    assert ds.pose(4321)[0, 3] == pytest.approx(432.1)
+    assert reads == []
+    assert len(ds[4321].points) == 16 and len(reads) == 1
