@@ -34,6 +34,7 @@ __all__ = [
     "SensorEstimate",
     "estimate_sensor",
     "valid_returns",
+    "NO_RETURN_COPIES",
     "coverage_deg",
     "METHOD_RING_FIELD",
     "METHOD_RING_MAJOR",
@@ -72,12 +73,26 @@ class SensorEstimate:
         return self.method in EXACT_METHODS
 
 
+#: A point written this many times or more, bit for bit, is a no-return marker, not a return:
+#: older nuScenes LIDAR_TOP files write every ray without a return as one fixed point 0.19 m from
+#: the sensor (9,220 copies in one scan), far enough out to pass the near test. A real return is
+#: at most doubled (a dual-return sensor whose strongest return is also its last).
+NO_RETURN_COPIES = 8
+
+
 def valid_returns(points: np.ndarray, r: np.ndarray | None = None) -> np.ndarray:
-    """Which points are returns: not nearer than :data:`NO_RETURN_RANGE_M` (no-return markers for
-    rays without a return are written at the origin or a hair from it)."""
+    """Which points are returns: not nearer than :data:`NO_RETURN_RANGE_M`, and not an exact copy
+    of a point written :data:`NO_RETURN_COPIES` times or more -- the two ways drivers write a ray
+    without a return (at the origin or a hair from it; one fixed point, whatever its range)."""
+    p = np.asarray(points)
     if r is None:
-        r = np.linalg.norm(np.asarray(points, dtype=np.float64), axis=1)
-    return np.asarray(r) >= NO_RETURN_RANGE_M
+        r = np.linalg.norm(p.astype(np.float64), axis=1)
+    valid = np.asarray(r) >= NO_RETURN_RANGE_M
+    if len(p) >= NO_RETURN_COPIES:
+        rows = np.ascontiguousarray(p).view(np.dtype((np.void, p.dtype.itemsize * p.shape[1]))).ravel()
+        _, inverse, counts = np.unique(rows, return_inverse=True, return_counts=True)
+        valid &= counts[inverse.ravel()] < NO_RETURN_COPIES
+    return valid
 
 
 def coverage_deg(az: np.ndarray, step: float) -> int:

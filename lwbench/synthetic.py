@@ -181,6 +181,10 @@ HDL32_NOMINAL = tuple(float(e) for e in np.linspace(-30.67, 10.67, 32))
 #: below 1e-4 m). Every such ray is then an exact copy of every other.
 NO_RETURN = (3e-5, -2e-5, 4e-5)
 
+#: The no-return marker of older nuScenes LIDAR_TOP files: one point about 0.19 m from the sensor
+#: (elevation -3.68 deg), written for every ray that got no return.
+NUSCENES_NO_RETURN = (0.1893, 0.0084, -0.0122)
+
 
 def with_exact_duplicates(frame: Frame, share: float = 0.25, seed: int = 0) -> Frame:
     """``frame`` plus exact copies of ``share`` of its points, shuffled in (attributes follow):
@@ -191,7 +195,7 @@ def with_exact_duplicates(frame: Frame, share: float = 0.25, seed: int = 0) -> F
     return frame.subset(idx[rng.permutation(len(idx))])
 
 
-def hdl32_ring_scan(seed: int = 0, firings: int = 1086) -> Frame:
+def hdl32_ring_scan(seed: int = 0, firings: int = 1086, marker: tuple[float, float, float] | None = None) -> Frame:
     """A 32-beam street scan (ground 1.8 m below, building fronts 8-25 m away in some
     directions, open sky elsewhere), ``firings`` x 32 points in firing order with a ring field,
     like a nuScenes ``LIDAR_TOP`` sweep.
@@ -200,7 +204,9 @@ def hdl32_ring_scan(seed: int = 0, firings: int = 1086) -> Frame:
     as :data:`NO_RETURN`, so the upper rings, which mostly see the sky, are mostly that one point
     and their per-ring medians coincide: the sensor model derived from the ring field (as the
     loaders derive it) has several beams at one elevation. Both are what ordinary real scans do
-    to codecs that assume clean data.
+    to codecs that assume clean data. ``marker`` writes them as another fixed point instead --
+    older nuScenes files use one 0.19 m from the sensor (:data:`NUSCENES_NO_RETURN`), which a
+    range test alone does not tell from a return.
     """
     rng = np.random.default_rng(seed)
     el = np.radians(np.asarray(HDL32_NOMINAL) + rng.uniform(-0.15, 0.15, 32))[:, None]
@@ -215,7 +221,7 @@ def hdl32_ring_scan(seed: int = 0, firings: int = 1086) -> Frame:
     hit = np.isfinite(t)
     t = np.where(hit, t, 0.0) * (1 + rng.normal(0, 0.002, t.shape))
     pts = unit_directions(az, el) * t[..., None]
-    pts[~hit] = NO_RETURN
+    pts[~hit] = NO_RETURN if marker is None else marker
     points = pts.transpose(1, 0, 2).reshape(-1, 3).astype(np.float32)  # firing-major, as drivers write
     ring = np.tile(np.arange(32, dtype=np.uint16), firings)
     intensity = rng.uniform(0, 100, len(points)).astype(np.float32)

@@ -353,3 +353,49 @@ def test_a_long_folder_opens_and_gives_its_poses_without_reading_its_scans(tmp_p
     assert ds.pose(4321)[0, 3] == pytest.approx(432.1)
     assert reads == []
     assert len(ds[4321].points) == 16 and len(reads) == 1
+
+
+# ----------------------------------------------------------------- no-return markers (issue 32)
+def _nuscenes_marked(tmp_path, marker) -> list:
+    # marker None: the synthetic scan's own marker, a hair from the origin (the clean case)
+    """Two HDL-32E ring-layout sweeps written as nuScenes .pcd.bin (x, y, z, intensity, ring)."""
+    from lwbench.synthetic import hdl32_ring_scan
+
+    frames = []
+    for i in range(2):
+        f = hdl32_ring_scan(seed=i, marker=marker)
+        rows = np.column_stack([f.points, f.intensity, f.ring.astype(np.float32)]).astype("<f4")
+        rows.tofile(tmp_path / f"n015-2018-07-24-11-22-45+0800__LIDAR_TOP__15324029476{i}0000.pcd.bin")
+        frames.append(f)
+    return frames
+
+
+def test_no_return_copies_far_from_the_origin_are_left_out_of_the_derived_sensor(tmp_path):
+    """Older nuScenes files write each ray without a return as one point 0.19 m out: before, nine
+    upper rings were derived at its -3.68 deg and the minimum range came out 0.1 m."""
+    from typer.testing import CliRunner
+
+    from lwbench.cli import app
+    from lwbench.derive import derive_sensor
+    from lwbench.leaderboard import build_leaderboard
+    from lwbench.store import ResultStore
+    from lwbench.synthetic import NUSCENES_NO_RETURN
+
+    (tmp_path / "scans").mkdir()
+    frames = _nuscenes_marked(tmp_path / "scans", NUSCENES_NO_RETURN)
+    (tmp_path / "clean").mkdir()
+    first_clean = _nuscenes_marked(tmp_path / "clean", None)[0]
+    clean = derive_sensor(first_clean.points, ring=first_clean.ring, rate_hz=20.0)
+    marked = PointFileDataset(path=str(tmp_path / "scans"))
+    assert marked.sensor.n_beams == 32
+    assert np.allclose(marked.sensor.elevations_deg, clean.sensor.elevations_deg, atol=1e-6)
+    assert marked.sensor.azimuth_step_deg == pytest.approx(clean.sensor.azimuth_step_deg)
+    assert marked.sensor.min_range > 1.0  # the markers are not the nearest return
+    assert len(marked[1]) == len(frames[1].points)  # the second sweep is the same sensor's
+    store = tmp_path / "r.sqlite"
+    res = CliRunner().invoke(app, ["run", "--dataset", str(tmp_path / "scans"), "--codec", "laz",
+                                   "--no-sequence-metrics", "--store", str(store)])
+    assert res.exit_code == 0, res.output
+    with ResultStore(store, readonly=True) as results:
+        (laz,) = build_leaderboard(results)
+        assert laz.stats["coverage"]["mean"] == 1.0 and laz.frames == 2
