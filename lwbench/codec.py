@@ -70,6 +70,13 @@ class Codec(abc.ABC):
         self.config: dict[str, Any] = resolve_params(self.name, self.all_params(), params)
 
     @classmethod
+    def missing(cls, config: dict[str, Any]) -> str:
+        """What a configuration lacks to run on any scan, in one line (``""``: nothing). A run
+        asks before any work, so a codec that cannot run as configured (the oracle without its
+        labels) is one refusal, not a failure row on every frame."""
+        return ""
+
+    @classmethod
     def all_params(cls) -> tuple[Param, ...]:
         """Every parameter this codec accepts (its own plus its kind's)."""
         return cls.params

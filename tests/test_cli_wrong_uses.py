@@ -99,6 +99,13 @@ def test_an_unknown_sort_is_refused_before_the_evaluation(tmp_path):
     assert not (tmp_path / "s.sqlite").exists()  # nothing was evaluated
 
 
+def test_a_codec_that_cannot_run_as_configured_is_refused_before_any_work(tmp_path):
+    """The oracle without labels failed every frame of every set (issue 32): now one line."""
+    line = wrong("run", "--codec", "oracle", "--frames", "1", "--store", str(tmp_path / "s.sqlite"))
+    assert "oracle.labels=DIR" in line
+    assert not (tmp_path / "s.sqlite").exists()
+
+
 @pytest.mark.skipif(importlib.util.find_spec("ray") is not None, reason="Ray is installed here")
 def test_the_ray_hint_keeps_its_brackets(tmp_path):
     line = wrong("run", "--executor", "ray", "--codec", "raw", "--frames", "1", "--store", str(tmp_path / "s.sqlite"))

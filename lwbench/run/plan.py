@@ -119,7 +119,11 @@ def expand_codec_configs(codec_cls: type[Codec], values: Mapping[str, Sequence[A
     configs = []
     for combo in itertools.product(*(values[n] for n in names)):
         given = _with_seed(declared, dict(zip(names, combo, strict=True)), seed)
-        configs.append(CodecConfig(codec_cls.name, resolve_params(codec_cls.name, declared, given)))
+        config = CodecConfig(codec_cls.name, resolve_params(codec_cls.name, declared, given))
+        lacking = codec_cls.missing(config.params)
+        if lacking:
+            raise ParameterError(f"{codec_cls.name}: {lacking}")
+        configs.append(config)
     return _unique(configs)
 
 

@@ -217,9 +217,15 @@ class OracleSelector(SelectionCodec):
         super().__init__(**params)
         self._labels: LabelFolder | None = None
 
+    @classmethod
+    def missing(cls, config: dict[str, Any]) -> str:
+        if not config.get("labels"):
+            return "set oracle.labels=DIR (labels written by `lwbench label DATASET --out DIR`)"
+        return ""
+
     def select(self, frame: Frame) -> np.ndarray:
         if not self.config["labels"]:
-            raise ParameterError("oracle: set oracle.labels=DIR (labels written by `lwbench label DATASET --out DIR`)")
+            raise ParameterError(f"oracle: {self.missing(self.config)}")
         if self._labels is None:
             self._labels = LabelFolder(self.config["labels"])
         k = self.budget(len(frame))
