@@ -272,8 +272,10 @@ class _ScanFiles(Dataset):
     def source_info(self) -> dict[str, Any]:
         """How this dataset was read: layout, poses, skipped files and the sensor's source."""
         info: dict[str, Any] = {"layout": self.layout, "poses from": self.pose_source or "none"}
-        if self.skipped:
-            info["skipped files"] = [p.name for p in self.skipped]
+        read_as_times = set(self.time_files.values())
+        skipped = [p.name for p in self.skipped if p not in read_as_times]
+        if skipped:
+            info["skipped files"] = skipped
         if self.time_files:
             first = next(iter(self.time_files.values())).name
             info["per-point times from"] = f"{len(self.time_files)} sidecar files ({first}, ...)"

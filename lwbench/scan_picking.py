@@ -81,10 +81,15 @@ def pick_scans(candidates: list[Path], where: Path, loader: str) -> tuple[list[P
         chosen = files
     taken = set(chosen)
     skipped = sorted((p for p in candidates if p not in taken), key=natural_key)
-    if skipped:
-        shown = ", ".join(p.name for p in skipped[:5]) + (f", ... ({len(skipped)} in all)" if len(skipped) > 5 else "")
+    # Per-point time files beside their scans (times_NN.bin by raw_NN.bin) are read, not skipped:
+    # only what is really left out is said.
+    times = set(time_sidecars(chosen, skipped).values())
+    left_out = [p for p in skipped if p not in times]
+    if left_out:
+        more = f", ... ({len(left_out)} in all)" if len(left_out) > 5 else ""
+        shown = ", ".join(p.name for p in left_out[:5]) + more
         warnings.warn(
-            f"{loader}: {len(skipped)} file(s) in {where} are not scans of this layout and were skipped: {shown}",
+            f"{loader}: {len(left_out)} file(s) in {where} are not scans of this layout and were skipped: {shown}",
             DataWarning,
             stacklevel=3,
         )

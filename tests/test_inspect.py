@@ -73,11 +73,11 @@ def test_a_sqlite_file_with_lwbench_tables_but_no_schema_version_is_not_a_store(
 def test_inspect_shows_how_the_sensor_was_derived_and_what_was_skipped(tmp_path):
     for i in range(2):
         write_bin(tmp_path / f"{i:06d}.bin", spinning_scan("hdl64e", order="ring", elevation_noise_deg=0.2, seed=i))
-    np.zeros(100, "<f4").tofile(tmp_path / "times_000000.bin")
+    np.zeros(100, "<f4").tofile(tmp_path / "notes.bin")  # (a times_000000.bin would be read as 000000's times)
     info = describe(tmp_path, get_registry())
     assert info["kind"] == "scan data (kitti loader)" and info["frames"] == 2
-    assert info["skipped files"] == ["times_000000.bin"]
-    assert any("times_000000.bin" in w for w in info["warnings"])
+    assert info["skipped files"] == ["notes.bin"]
+    assert any("notes.bin" in w for w in info["warnings"])
     derived = info["derived sensor"]
     assert derived["method"] == "ring-major order" and derived["beams"] == 64 and derived["columns"] == 2048
     assert info["sensor source"] == "derived from 000000.bin (ring-major order)"

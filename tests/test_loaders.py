@@ -117,11 +117,12 @@ def test_kitti_takes_scans_from_the_layout_and_names_the_skipped_files(tmp_path)
     seq = _kitti_seq(tmp_path / "seq")
     for i in range(2):  # per-point times beside the scans: 4 bytes per point
         np.zeros(1001, "<f4").tofile(seq / "velodyne" / f"times_{i:06d}.bin")
-    with pytest.warns(DataWarning, match=r"2 file\(s\).*skipped: times_000000.bin, times_000001.bin"):
+    np.zeros(10, "<f4").tofile(seq / "velodyne" / "notes.bin")
+    with pytest.warns(DataWarning, match=r"1 file\(s\).*skipped: notes.bin$"):  # the times are read, not skipped
         ds = KittiDataset(path=str(seq))
     assert [p.name for p in ds.files] == ["000000.bin", "000001.bin"]
-    assert [p.name for p in ds.skipped] == ["times_000000.bin", "times_000001.bin"]
-    assert ds.source_info()["skipped files"] == ["times_000000.bin", "times_000001.bin"]
+    assert ds.source_info()["skipped files"] == ["notes.bin"]
+    assert "per-point times from" in ds.source_info()
     assert len(ds[1]) == len(spinning_scan("vlp16", order="firing", seed=1))
 
 
@@ -129,13 +130,13 @@ def test_a_flat_folder_of_bins_takes_one_naming_scheme(tmp_path):
     for i in range(3):
         write_bin(tmp_path / f"scan_{i}.bin", spinning_scan("vlp16", order="firing", seed=i))
     np.zeros(10, "<f4").tofile(tmp_path / "times_0.bin")
-    with pytest.warns(DataWarning, match="times_0.bin"):
-        ds = KittiDataset(path=str(tmp_path))
+    ds = KittiDataset(path=str(tmp_path))
     assert [p.name for p in ds.files] == ["scan_0.bin", "scan_1.bin", "scan_2.bin"]
+    with pytest.warns(DataWarning, match="times_0.bin has 40 bytes"):  # not scan_0's times after all: said on use
+        assert ds[0].time is None
     np.zeros(10, "<f4").tofile(tmp_path / "times_1.bin")
     np.zeros(10, "<f4").tofile(tmp_path / "times_2.bin")  # 3 per-point time files are still no scans
-    with pytest.warns(DataWarning, match="times_0.bin"):
-        assert [p.name for p in KittiDataset(path=str(tmp_path)).files] == ["scan_0.bin", "scan_1.bin", "scan_2.bin"]
+    assert [p.name for p in KittiDataset(path=str(tmp_path)).files] == ["scan_0.bin", "scan_1.bin", "scan_2.bin"]
     for i in range(3):
         np.zeros(10, "<f4").tofile(tmp_path / f"other_{i}.bin")  # now two schemes of 3 scans each
     with pytest.raises(DataFormatError, match=r"named in several ways \((scan|other)_N.bin, (scan|other)_N.bin\)"):
@@ -266,8 +267,13 @@ def test_raw_scans_beside_per_point_time_files_load_with_their_times(tmp_path):
     for i, pts in enumerate(scans):
         write_bin(tmp_path / f"raw_{i:02d}.bin", pts)
         np.linspace(0.0, 0.1, len(pts)).astype("<f8").tofile(tmp_path / f"times_{i:02d}.bin")
-    with pytest.warns(DataWarning, match="times_00.bin"):
+    import warnings
+
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
         ds = KittiDataset(path=str(tmp_path))
+    # The time files are read beside their scans: not "skipped" (issue 32's small item).
+    assert not [w for w in said if "skipped" in str(w.message)], [str(w.message) for w in said]
     assert [p.name for p in ds.files] == ["raw_00.bin", "raw_01.bin"]
     f = ds[1]
     assert len(f) == len(scans[1]) and f.time is not None
