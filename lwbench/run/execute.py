@@ -32,7 +32,6 @@ import contextlib
 import importlib
 import os
 import time
-from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from multiprocessing.connection import wait
@@ -48,7 +47,18 @@ from lwbench.sandbox import Sandbox, SandboxError, cap_memory, enter_child, how_
 
 from .evaluate import Evaluator, FrameResult, decoded_cloud
 from .plan import CodecConfig, DatasetSpec
-from .tasks import FrameTask, Result, SequenceResult, SequenceTask, Task, Throttle, failed_result
+from .tasks import (
+    FrameTask,
+    Result,
+    SequenceResult,
+    SequenceTask,
+    Task,
+    TaskQueue,
+    Throttle,
+    as_queue,
+    failed_result,
+    stuck,
+)
 
 __all__ = [
     "DEFAULT_TIMEOUT_S",
@@ -153,8 +163,12 @@ class InProcessExecutor:
         self.worker = worker
         self.on_progress: Callable[[SequenceTask, str, int, int], None] | None = None
 
-    def map(self, tasks: Iterable[Task]) -> Iterator[Result]:
-        for task in tasks:
+    def map(self, tasks: Iterable[Task] | TaskQueue) -> Iterator[Result]:
+        queue = as_queue(tasks)
+        while queue:
+            task = queue.take()
+            if task is None:
+                raise stuck(queue)
             yield from self.worker.run_each(task, on_progress=self.on_progress)
 
     def close(self) -> None:
@@ -287,7 +301,7 @@ class ProcessExecutor:
         slot.task, slot.remaining, slot.current, slot.deadline = task, list(task.configs), None, None
         slot.box.send(task)
 
-    def _lost(self, slot: _Slot, why: str, queue: deque) -> list[Result]:
+    def _lost(self, slot: _Slot, why: str, queue: TaskQueue) -> list[Result]:
         """The slot's worker is gone: its current evaluation fails with ``why``, the rest of its
         task goes back to the front of the queue, and the worker is replaced."""
         task = slot.task
@@ -300,17 +314,21 @@ class ProcessExecutor:
         self._replace(slot)
         return failed
 
-    def map(self, tasks: Iterable[Task]) -> Iterator[Result]:
-        queue = deque(tasks)
+    def map(self, tasks: Iterable[Task] | TaskQueue) -> Iterator[Result]:
+        queue = as_queue(tasks)
         if not queue:
             return
         self._ensure(min(self.workers, len(queue)))
-        by_key = {c.key: c for t in queue for c in t.configs}
+        by_key = {c.key: c for t in queue.items for c in t.configs}
         while queue or any(s.task is not None for s in self._slots):
             for slot in self._slots:
                 if slot.task is None and queue:
-                    self._assign(slot, queue.popleft())
+                    task = queue.take()
+                    if task is not None:
+                        self._assign(slot, task)
             busy = [s for s in self._slots if s.task is not None]
+            if not busy:
+                raise stuck(queue)
             now = time.monotonic()
             deadlines = [s.deadline - now for s in busy if s.deadline is not None]
             wait([s.box.conn for s in busy] + [s.box.sentinel for s in busy],

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import os
 import time
-from collections import deque
 from collections.abc import Iterable, Iterator
 
 from lwbench.errors import MissingDependencyError, ParameterError, WorkerError
@@ -33,7 +32,7 @@ from lwbench.registry import Registry, registry_from_recipe
 
 from .execute import DEFAULT_TIMEOUT_S, Result, Task, Worker
 from .plan import CodecConfig
-from .sequence import SequenceTask
+from .tasks import SequenceTask, TaskQueue, stuck
 
 __all__ = ["RayExecutor"]
 
@@ -116,13 +115,18 @@ class RayExecutor:
             return self.timeout_s
         return self.timeout_s * max(1.0, len(task.frame_indices) / 100)
 
-    def map(self, tasks: Iterable[Task]) -> Iterator[Result]:
+    def map(self, tasks: Iterable[Task] | TaskQueue) -> Iterator[Result]:
         ray = self.ray
         # One Ray task per evaluation: a timeout or a dead worker costs exactly one row.
-        queue = deque(one for t in tasks for one in t.split())
+        queue = tasks if isinstance(tasks, TaskQueue) else TaskQueue(one for t in tasks for one in t.split())
         while queue or self._pending:
             while queue and len(self._pending) < self.max_in_flight:
-                self._submit(queue.popleft())
+                task = queue.take()
+                if task is None:
+                    break
+                self._submit(task)
+            if not self._pending:
+                raise stuck(queue)
             now = time.monotonic()
             wait_s = 1.0
             limits = [(t0, self._limit_s(t)) for t, t0 in self._pending.values()]

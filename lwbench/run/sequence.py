@@ -19,7 +19,7 @@ stage) is re-evaluated through the same executor, with its payload kept, and rec
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from lwbench.dataset import Dataset
@@ -29,7 +29,7 @@ from lwbench.store import ResultRow, ResultStore
 
 from .plan import CodecConfig, DatasetSpec
 from .record import PAYLOAD, RowFactory, record_frame
-from .tasks import FrameTask, PayloadRefs, SequenceTask
+from .tasks import FrameTask, PayloadRefs, SequenceTask, TaskQueue
 
 __all__ = ["SequenceStage"]
 
@@ -104,29 +104,35 @@ class SequenceStage:
         if not wanted:
             return
         payloads = self._payloads([c for c, _ in wanted], executor)
-        first, rest = [], []
-        seen: set[str] = set()
+        tasks: list[SequenceTask] = []
+        firsts: set[int] = set()
         for config, metrics in wanted:
             refs = payloads[config.key]
             for metric in metrics:
                 if isinstance(refs, Exception):
                     yield self._store(config, metric, "failed", error=f"{type(refs).__name__}: {refs}")
                     continue
-                task = (config, metric, refs)
-                if metric.name in seen or metric.name in self.shared:
-                    rest.append(task)
-                else:
-                    seen.add(metric.name)
-                    first.append(task)
+                task = self._task(config, metric, refs)
+                if metric.name not in self.shared and not any(t.metric == metric.name for t in tasks):
+                    firsts.add(id(task))
+                tasks.append(task)
         # The first task of each metric computes what the originals give (once per run); the
-        # others start from it.
-        for batch in (first, rest):
-            tasks = [self._task(c, m, refs) for c, m, refs in batch]
-            for result in executor.map(tasks):
-                metric = by_name[result.metric]
-                if result.status == "ok" and result.shared:
-                    self.shared.setdefault(metric.name, {}).update(result.shared)
-                yield self._store(result.config, metric, result.status, result.metrics, result.extra, result.error)
+        # metric's other tasks wait for it and start from what it computed -- each as soon as its
+        # own metric's first task is back, so a free worker never waits on a whole batch.
+        settled = set(self.shared)
+
+        def ready(task: SequenceTask) -> bool:
+            return id(task) in firsts or task.metric in settled
+
+        def prepare(task: SequenceTask) -> SequenceTask:
+            return replace(task, shared=dict(self.shared.get(task.metric, {})))
+
+        for result in executor.map(TaskQueue(tasks, ready, prepare)):
+            metric = by_name[result.metric]
+            if result.status == "ok" and result.shared:
+                self.shared.setdefault(metric.name, {}).update(result.shared)
+            settled.add(metric.name)  # failed or not: the others compute it themselves then
+            yield self._store(result.config, metric, result.status, result.metrics, result.extra, result.error)
 
     def _task(self, config: CodecConfig, metric: SequenceMetric, refs: PayloadRefs) -> SequenceTask:
         return SequenceTask(self.dataset_spec, config, metric.name, tuple(self.frame_indices), self.seed, refs,

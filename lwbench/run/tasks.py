@@ -13,12 +13,12 @@ from pathlib import Path
 from typing import Any
 
 from lwbench.artifacts import CloudFiles
-from lwbench.errors import StoreError
+from lwbench.errors import LwbenchError, StoreError
 
 from .evaluate import FrameResult
 from .plan import CodecConfig, DatasetSpec
 
-__all__ = ["FrameTask", "PayloadRefs", "Result", "SequenceResult", "SequenceTask", "Task", "Throttle"]
+__all__ = ["FrameTask", "PayloadRefs", "Result", "SequenceResult", "SequenceTask", "Task", "TaskQueue", "Throttle"]
 
 
 @dataclass(frozen=True)
@@ -147,3 +147,42 @@ TaskReporter = Callable[[SequenceTask, str, int, int], None]
 
 Task = FrameTask | SequenceTask
 Result = FrameResult | SequenceResult
+
+
+class TaskQueue:
+    """Tasks in order, each handed out once ``ready(task)`` says it may run (a sequence metric's
+    later configurations wait for its first one, which computes what the originals give), after
+    ``prepare(task)`` (which hands it what that first task computed). An executor takes the first
+    ready task whenever a worker is free, so nothing waits on a whole batch."""
+
+    def __init__(self, tasks, ready: Callable[[Task], bool] | None = None,
+                 prepare: Callable[[Task], Task] | None = None) -> None:
+        self.items: list[Task] = list(tasks)
+        self.ready = ready or (lambda task: True)
+        self.prepare = prepare or (lambda task: task)
+
+    def __len__(self) -> int:
+        return len(self.items)
+
+    def __bool__(self) -> bool:
+        return bool(self.items)
+
+    def take(self) -> Task | None:
+        """The first ready task (removed, prepared), or None when every one left waits."""
+        for i, task in enumerate(self.items):
+            if self.ready(task):
+                del self.items[i]
+                return self.prepare(task)
+        return None
+
+    def appendleft(self, task: Task) -> None:
+        """Put a task back in front (the rest of a lost worker's task): it is ready."""
+        self.items.insert(0, task)
+
+
+def as_queue(tasks) -> TaskQueue:
+    return tasks if isinstance(tasks, TaskQueue) else TaskQueue(tasks)
+
+
+def stuck(queue: TaskQueue) -> LwbenchError:
+    return LwbenchError(f"{len(queue)} task(s) wait on results that will not come (a bug in lwbench)")
