@@ -45,6 +45,11 @@ class Dataset(abc.ABC):
     def has_poses(self) -> bool:
         """Whether frames carry ground-truth poses (sequence metrics need them)."""
 
+    def why_no_poses(self) -> str:
+        """Said when a run skips the sequence metrics because :attr:`has_poses` is false: where
+        the poses would have come from (a loader names its pose files). Default: a generic line."""
+        return f"{self.name} gives no ground-truth poses"
+
     @property
     def sensor_guessed(self) -> bool:
         """Whether the dataset's sensor model is a guess (derived without ring labels, a preset

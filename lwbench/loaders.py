@@ -253,6 +253,13 @@ class _ScanFiles(Dataset):
         scan = read_kitti_bin(path, self.config["fields"], drop_non_returns=False)
         return ScanArrays(scan.points, scan.intensity, scan.ring, read_time_sidecar(sidecar, len(scan.points))).finite()
 
+    def why_no_poses(self) -> str:
+        if self.folder.name == "velodyne":
+            return (f"{self.folder} is a velodyne/ folder: point at its parent, where poses.txt and calib.txt "
+                    "live (or poses/NN.txt of the odometry tree)")
+        return (f"no poses file beside the scans in {self.folder} (KITTI: poses.txt next to velodyne/; a folder of "
+                "scan files: one *pose*.txt or --dataset-param poses_file=PATH; see docs/datasets.md)")
+
     def pose(self, index: int) -> np.ndarray | None:
         """From the poses file: no scan is read."""
         if self.poses is None:

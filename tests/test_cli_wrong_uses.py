@@ -136,3 +136,16 @@ def test_lwbench_alone_prints_the_help_once():
     res = runner.invoke(app, [], catch_exceptions=False)
     assert res.exit_code == 2 and res.output.count("Usage: ") == 1
     assert not any(line.startswith("error:") for line in res.output.splitlines())
+
+
+@pytest.mark.parametrize("inside", [False, True], ids=["folder", "velodyne"])
+def test_sequence_metrics_skipped_for_want_of_poses_say_so(tmp_path, kitti_folder, inside):
+    """Issue 33: a folder without poses (or its velodyne/ folder) ran without its sequence metrics
+    and said nothing. Now one note names the metrics and where poses would come from."""
+    target = kitti_folder / "velodyne" if inside else kitti_folder
+    res = runner.invoke(app, ["run", "--dataset", str(target), "--codec", "raw", "--frames", "1",
+                              "--store", str(tmp_path / "r.sqlite")], catch_exceptions=False)
+    assert res.exit_code == 0, res.output
+    note = " ".join(res.stderr.split())
+    assert "sequence metrics (localization, occupancy, odometry) skipped:" in note
+    assert ("point at its parent" in note) == inside and ("no poses file" in note) != inside

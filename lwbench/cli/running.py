@@ -118,6 +118,8 @@ def run(
                 f"[bold]lwbench run[/]: {escape(runner.plan.dataset.label)} · {len(runner.frame_indices)} frame(s) · "
                 f"{len(runner.configs)} codec configuration(s) · store {escape(str(request.store_path))}"
             )
+            if runner.sequence_skipped:
+                err_console.print(f"[yellow]note:[/] {escape(runner.sequence_skipped)}", highlight=False)
             summary = _run_with_progress(runner)
             console.print(
                 f"evaluated {summary.evaluated}, cached {summary.skipped} of {n_total}; "

@@ -100,6 +100,13 @@ class Runner:
             sensor_guessed=bool(self.dataset.sensor_guessed),
         )
         self.sequence: SequenceStage | None = None
+        # Why asked-for sequence metrics will not run (said by the CLI, never silent): no poses.
+        self.sequence_skipped = ""
+        if plan.sequence_metrics and not self.dataset.has_poses:
+            names = [m.name for m in self.registry.sequence_metric_instances(plan.metric_params, plan.metrics)]
+            if names:
+                self.sequence_skipped = (f"sequence metrics ({', '.join(names)}) skipped: "
+                                         f"{self.dataset.why_no_poses()}")
         if plan.sequence_metrics and self.dataset.has_poses:
             metrics = self.registry.sequence_metric_instances(plan.metric_params, plan.metrics)
             if metrics:
