@@ -183,3 +183,21 @@ def test_isolated_and_in_process_runs_store_the_same_rows(scans, tmp_path):
     assert _run(tag, "run", *args, "--in-process", "--store", str(tmp_path / "a.sqlite")).returncode == 0
     assert _run(tag, "run", *args, "--store", str(tmp_path / "b.sqlite")).returncode == 0
     assert _rows(tmp_path / "a.sqlite") == _rows(tmp_path / "b.sqlite")
+
+
+def test_ctrl_c_is_the_driver_s_to_answer_not_a_worker_s():
+    """Issue 33: Ctrl-C printed a traceback from every idle worker. A worker ignores SIGINT (the
+    terminal sends it to the whole group); the driver stores what finished and stops them."""
+    import os
+    import signal
+    import time
+
+    from lwbench.registry import get_registry
+    from lwbench.run.execute import ProcessExecutor
+
+    with ProcessExecutor(get_registry().recipe(), workers=1, preload=()) as executor:
+        executor._ensure(1)
+        box = executor._slots[0].box
+        os.kill(box.proc.pid, signal.SIGINT)
+        time.sleep(1.0)
+        assert box.alive

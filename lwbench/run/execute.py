@@ -31,6 +31,7 @@ from __future__ import annotations
 import contextlib
 import importlib
 import os
+import signal
 import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
@@ -193,6 +194,10 @@ def default_memory_mb(workers: int) -> int:
 # -- the worker process ---------------------------------------------------------------------------
 def _worker_main(conn, parent: int, recipe, metric_params: dict, memory_mb: int, preload: tuple[str, ...]) -> None:
     enter_child(parent)
+    # Ctrl-C reaches every process of the terminal's group: the driver alone answers it (it stores
+    # what finished and stops the workers), so a worker neither dies with a traceback nor prints
+    # a stray "Process lwbench-worker:" line.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     worker = Worker(registry_from_recipe(recipe), metric_params)
     for module in preload:  # start-up once per worker: not inside the first evaluation's timeout
         with contextlib.suppress(Exception):
