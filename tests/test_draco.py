@@ -45,6 +45,16 @@ def test_round_trip_within_quantization_step(bits: int) -> None:
         assert cKDTree(frame.points).query(decoded)[0].max() > step / 10
 
 
+@pytest.mark.parametrize("level", [0, 1, 10])
+def test_every_declared_compression_level_decodes(level: int) -> None:
+    """Level 0 makes Draco code sequentially, which the decoder's pre-check refused (issue 33):
+    an encoder must never write what its own decoder refuses."""
+    frame = scan()
+    data = DracoCodec(compression_level=level).encode(frame)
+    decoded = DracoCodec(compression_level=level).decode(data)
+    assert_on_grid(frame.points, decoded, quantization_step(frame.points, 14))
+
+
 def test_explicit_quantization_range_sets_the_step() -> None:
     frame = scan(5_000)
     codec = DracoCodec(quantization_bits=12, quantization_range=200.0)

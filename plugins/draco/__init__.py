@@ -196,15 +196,16 @@ _DRACO_HEAD = struct.Struct("<5sBBBBHi")  # magic, version major, minor, encoder
 
 
 def _check_draco_header(body: bytes, n: int) -> None:
-    """What can be checked before DracoPy allocates: the buffer is a k-d tree coded point cloud
-    (what :meth:`DracoCodec.encode` writes: encoder type 0, method 1, no metadata) whose point
-    count is the one the lwbench header states. Draco reads its own count and allocates for it;
-    a crafted count (one flipped bit) asked it for gigabytes."""
+    """What can be checked before DracoPy allocates: the buffer is a point cloud as
+    :meth:`DracoCodec.encode` writes it (encoder type 0, no metadata; method 1, the k-d tree, or
+    method 0, sequential coding, which Draco picks at ``compression_level=0``) whose point count
+    is the one the lwbench header states. Draco reads its own count and allocates for it; a
+    crafted count (one flipped bit) asked it for gigabytes."""
     if len(body) < _DRACO_HEAD.size:
         raise PayloadError(f"draco payload: a body of {len(body)} bytes is shorter than Draco's header")
     magic, _major, _minor, kind, method, flags, count = _DRACO_HEAD.unpack_from(body)
-    if magic != b"DRACO" or kind != 0 or method != 1 or flags != 0:
-        raise PayloadError("draco payload: body is not a Draco k-d tree point cloud as this codec writes")
+    if magic != b"DRACO" or kind != 0 or method not in (0, 1) or flags != 0:
+        raise PayloadError("draco payload: body is not a Draco point cloud as this codec writes")
     if count != n:
         raise PayloadError(f"draco payload: the Draco buffer holds {count} points, the header says {n}")
 
