@@ -22,7 +22,10 @@ class HalfFloatCodec(RepresentationCodec):
         pts = frame.points.astype(np.float64)
         offset = pts.mean(axis=0) if (self.config["center"] and len(pts)) else np.zeros(3)
         body = (pts - offset).astype("<f2").tobytes()
-        return self.make_payload(frame, {"offset": offset.tolist(), "n": len(pts)}, body)
+        # The sensor travels as a name (a preset or a 16-hex id of its table, ~25 bytes) under
+        # meta["sensor"], where read_sensor() looks for it; the decoder bounds the cloud by its range.
+        meta = {"offset": offset.tolist(), "n": len(pts), "sensor": self.sensor_meta(frame.sensor)}
+        return self.make_payload(frame, meta, body)
 
     def decode(self, data: bytes) -> np.ndarray:
         payload = self.read_payload(data)
@@ -34,8 +37,9 @@ class HalfFloatCodec(RepresentationCodec):
         offset = self.meta_field(payload, "offset", list)
         if len(offset) != 3 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in offset):
             raise PayloadError("half: the offset is not three numbers")
+        sensor = self.read_sensor(payload)  # meta["sensor"], resolved among the sensors handed to the decoder
         pts = np.frombuffer(payload.body, dtype="<f2").reshape(n, 3).astype(np.float64) + np.asarray(offset, float)
-        return checked_cloud(pts, self.name)
+        return checked_cloud(pts, self.name, max_range=sensor.max_range)
 
 
 @hookimpl
