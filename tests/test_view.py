@@ -75,3 +75,17 @@ def test_the_open3d_window_renders_the_pair(tmp_path):
     pair = ViewPair(frame.points, frame.points[::3] + np.float32(0.02), "window test")
     show_window(pair, capture=tmp_path / "window.png")
     assert (tmp_path / "window.png").stat().st_size > 1000
+
+
+def test_a_decoded_file_is_compared_with_the_scan_it_is_named_after(tmp_path, kitti_folder, headless):
+    """Issue 33: `lwbench view FOLDER dec/000002.raw.pcd` compared it with frame 0."""
+    assert runner.invoke(app, ["encode", str(kitti_folder), "--codec", "raw", "--out", str(tmp_path / "enc")]
+                         ).exit_code == 0
+    assert runner.invoke(app, ["decode", str(tmp_path / "enc"), "--out", str(tmp_path / "dec")]).exit_code == 0
+    res = runner.invoke(app, ["view", str(kitti_folder), str(tmp_path / "dec" / "000002.raw.pcd"),
+                              "--png", str(tmp_path / "v.png")])
+    assert res.exit_code == 0, res.output
+    assert "frame 2" in res.stdout, res.stdout
+    (tmp_path / "dec" / "000002.raw.pcd").rename(tmp_path / "mine.pcd")
+    res = runner.invoke(app, ["view", str(kitti_folder), str(tmp_path / "mine.pcd")])
+    assert res.exit_code == 2 and "--frame N" in res.output

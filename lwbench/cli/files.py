@@ -83,6 +83,20 @@ def decode(
                   f"{escape(str(where))}")
 
 
+def _frame_named_by(ds, decoded: Path | None) -> int:
+    """The frame a decoded file belongs to, by name: ``lwbench decode`` names each cloud after its
+    scan (``000010.bin`` -> ``000010.vsgp.pcd``). A one-frame source, a codec run or a stream file
+    means frame 0; a decoded file of a longer source whose name is no scan's is refused -- compared
+    with the wrong scan, its errors would be the distance between two scans (issue 33)."""
+    if decoded is None or len(ds) == 1 or decoded.suffix == ".lwbs":
+        return 0
+    stem = decoded.name.split(".")[0]
+    for i in range(len(ds)):
+        if ds.frame_origin(i).get("name") == stem:
+            return i
+    raise ParameterError(f"{decoded.name} is named after no scan of the source ({len(ds)} frames): pass --frame N")
+
+
 @app.command(rich_help_panel=PANEL)
 def view(
     source: Annotated[str, typer.Argument(help="The original: a scan file, dataset folder, ROS bag or dataset name.")],
@@ -92,8 +106,9 @@ def view(
         help="Encode and decode the frame with this codec (as a run).", rich_help_panel="Codecs")] = None,
     param: CodecSettings = None,
     dataset_param: DatasetParams = None,
-    frame: Annotated[int, typer.Option(
-        help="Which frame of the source (and of a stream file).", min=0, rich_help_panel="Data")] = 0,
+    frame: Annotated[int | None, typer.Option(
+        help="Which frame of the source (and of a stream file). Default: the scan a decoded file is "
+             "named after (000010.vsgp.pcd: 000010), else the first.", min=0, rich_help_panel="Data")] = None,
     png: Annotated[Path | None, typer.Option(
         help="Write this PNG instead of opening a window.", rich_help_panel=OUTPUT)] = None,
     max_error: Annotated[float | None, typer.Option(
@@ -109,6 +124,8 @@ def view(
         raise ParameterError("give a decoded file or --codec (one of them)")
     reg = registry()
     _, ds = open_source(reg, source, dataset_param, seed)
+    if frame is None:
+        frame = _frame_named_by(ds, decoded)
     if frame >= len(ds):
         raise ParameterError(f"--frame {frame}: the source has {len(ds)} frame(s)")
     original = ds[frame]
