@@ -118,3 +118,19 @@ def test_stream_reports_reading_and_each_stream(tmp_path):
     assert phases[0].startswith("reading the 2 scans of sim") and phases[1] == "streaming raw through 50 KB/s"
     (run,) = json.loads((tmp_path / "s" / "stream.json").read_text())["runs"]
     assert run["frames"] == 2
+
+
+def test_report_config_opens_one_frames_phase_per_run_not_per_row(tmp_path):
+    """Issue 33: `lwbench report --config` built a new progress phase on every stored row (20,272
+    lines on the RD study). Two runs (two seeds) of three frames: two frames phases."""
+    run_file = tmp_path / "study.toml"
+    run_file.write_text(
+        f'store = "{tmp_path / "r.sqlite"}"\nframes = 3\nseeds = [0, 1]\nsequence_metrics = false\n'
+        '[[dataset]]\nname = "sim"\n[[codec]]\nname = "raw"\n[[codec]]\nname = "random"\n'
+    )
+    res = runner.invoke(app, ["report", "--config", str(run_file), "--out", str(tmp_path / "rep")],
+                        env={"LWBENCH_PROGRESS_S": "0"}, catch_exceptions=False)
+    assert res.exit_code == 0, res.output
+    done = [line for line in res.stderr.splitlines() if line.startswith("lwbench: frames") and " done: " in line]
+    assert len(done) == 2, res.stderr
+    assert len([line for line in res.stderr.splitlines() if line.startswith("lwbench:")]) <= 40
