@@ -38,8 +38,14 @@ TILE_M = 32.0
 
 
 def tile_budget_bytes() -> int:
-    """What one map keeps in memory (``LWBENCH_MAP_MEMORY_MB``, default 64 MB); the rest spills."""
-    return int(float(os.environ.get("LWBENCH_MAP_MEMORY_MB", "64")) * 2**20)
+    """The most one map keeps in memory (``LWBENCH_MAP_MEMORY_MB``, default 256 MB); the rest
+    spills. Tiles the route has left go out sooner (:attr:`SpillingTiles.idle`)."""
+    return int(float(os.environ.get("LWBENCH_MAP_MEMORY_MB", "256")) * 2**20)
+
+
+#: A tile no scan has touched for this many scans is written out whatever the budget: memory is
+#: then what the last scans reach (their working set), not what the budget allows.
+IDLE_SCANS = 8
 
 
 def _voxels_per_tile(voxel: float) -> int:
@@ -110,6 +116,9 @@ class SpillingTiles(Generic[T]):
         self.budget = tile_budget_bytes() if budget is None else budget
         self.name = name
         self._memory: OrderedDict[int, T] = OrderedDict()
+        self._used: dict[int, int] = {}  # tile -> the settle() count when it was last asked for
+        self._tick = 0
+        self.idle = IDLE_SCANS
         self._on_disk: set[int] = set()
         self._folder: Path | None = None
         self.spilled = 0  # tiles written out (a figure for the docs and tests)
@@ -124,6 +133,7 @@ class SpillingTiles(Generic[T]):
 
     def get(self, tile: int, create: bool = True) -> T | None:
         """The tile (read back from disk if it was written out; a new one if ``create``)."""
+        self._used[tile] = self._tick
         item = self._memory.get(tile)
         if item is not None:
             self._memory.move_to_end(tile)
@@ -142,11 +152,16 @@ class SpillingTiles(Generic[T]):
         return item
 
     def settle(self) -> None:
-        """Write out the least recently used tiles until the rest fit the budget (call after a
-        scan's updates: a tile grows while it is being updated)."""
+        """Once per scan, after its updates (a tile grows while it is updated): write out the
+        tiles no scan asked for in the last :attr:`idle` scans, then the least recently used
+        ones until the rest fit the budget."""
+        self._tick += 1
         total = sum(t.nbytes() for t in self._memory.values())
-        while total > self.budget and len(self._memory) > 1:
-            tile, item = self._memory.popitem(last=False)
+        while self._memory and len(self._memory) > 1:
+            tile = next(iter(self._memory))
+            if total <= self.budget and self._tick - self._used.get(tile, 0) <= self.idle:
+                break
+            item = self._memory.pop(tile)
             total -= item.nbytes()
             np.savez(self._path(tile), **item.arrays())
             self._on_disk.add(tile)

@@ -53,6 +53,8 @@ def test_a_localization_map_spilled_to_disk_is_the_one_held_in_memory(street):
     maps = []
     for budget in (1 << 40, 1):
         builder = MapBuilder(ICP_PARAMS["map_voxel"], budget=budget)
+        if budget > 1:
+            builder.tiles.idle = 10**9  # held: nothing goes out, not even the tiles the route left
         for points, pose in scans:
             builder.add(points, pose)
         maps.append(builder.finish(ICP_PARAMS))
@@ -66,6 +68,21 @@ def test_a_localization_map_spilled_to_disk_is_the_one_held_in_memory(street):
     assert np.allclose(np.abs(np.einsum("ij,ij->i", na, nb)), 1.0, atol=1e-9)  # same planes (a sign may flip)
     for m in maps:
         m.close()
+
+
+def test_tiles_the_route_has_left_go_out_whatever_the_budget(street):
+    """Memory follows what the last scans reach: a long drive's map is mostly on disk even under a
+    budget that would hold all of it."""
+    scans, _ = street
+    builder = MapBuilder(ICP_PARAMS["map_voxel"], budget=1 << 40)
+    for points, pose in scans:
+        builder.add(points, pose)
+    builder.tiles.idle = 2
+    for points, pose in scans[-3:]:
+        builder.add(points, pose)
+    held = len(builder.tiles._memory)
+    assert builder.tiles.spilled > 0 and held < len(builder.tiles.tiles())
+    builder.tiles.close()
 
 
 def test_spilled_tiles_are_removed_on_close(tmp_path, monkeypatch):
