@@ -71,24 +71,45 @@ def main() -> None:
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     ps = psutil.Process(proc.pid)
     peak = [0]
+    phase = ["start"]
+    by_phase: dict[str, int] = {}
     done = threading.Event()
 
     def sample() -> None:
         while not done.is_set():
-            peak[0] = max(peak[0], tree_rss(ps))
+            rss = tree_rss(ps)
+            peak[0] = max(peak[0], rss)
+            by_phase[phase[0]] = max(by_phase.get(phase[0], 0), rss)
             time.sleep(0.5)
 
+    lines: list[str] = []
+
+    def read_stderr() -> None:
+        # The phase each sample belongs to, from the run's own progress lines.
+        for line in proc.stderr:
+            lines.append(line)
+            if "lwbench: frames" in line:
+                phase[0] = "frames"
+            elif "lwbench: sequence metrics" in line:
+                phase[0] = "sequence"
+
     sampler = threading.Thread(target=sample, daemon=True)
+    reader = threading.Thread(target=read_stderr, daemon=True)
     sampler.start()
-    out, err = proc.communicate()
+    reader.start()
+    proc.stdout.read()  # the board: not measured
+    proc.wait()
+    reader.join()
     done.set()
     sampler.join()
+    err = "".join(lines)
     wall = time.monotonic() - t0
     clouds = a.store.with_name(a.store.stem + ".clouds")
     disk = sum(p.stat().st_size for p in clouds.rglob("*") if p.is_file()) if clouds.is_dir() else 0
     payloads, gallery = payload_bytes(a.store) if a.store.is_file() else (0, 0)
     record = {
         "args": args, "rc": proc.returncode, "wall_s": round(wall, 1), "peak_tree_rss_mb": round(peak[0] / 2**20),
+        "peak_tree_rss_mb_by_phase": {k: round(v / 2**20) for k, v in by_phase.items()},
         "phases_s": phase_seconds(err), "disk_beside_store_mb": round(disk / 2**20, 1),
         "payload_mb": round(payloads / 2**20, 1), "gallery_mb": round(gallery / 2**20, 1),
         "disk_over_payloads_plus_gallery": round(disk / max(payloads + gallery, 1), 3),

@@ -47,6 +47,7 @@ from lwbench.registry import Registry, registry_from_recipe
 from lwbench.sandbox import Sandbox, SandboxError, cap_memory, enter_child, how_it_died
 
 from .evaluate import Evaluator, FrameResult, decoded_cloud
+from .heap import HeapReturner
 from .plan import CodecConfig, DatasetSpec
 from .tasks import (
     FrameTask,
@@ -142,9 +143,16 @@ def run_sequence_task(worker: Worker, task: SequenceTask,
         cache = dict(task.shared)
         before = set(cache)
         report = None if on_progress is None else Throttle(lambda what, k, n: on_progress(task, what, k, n))
+        give_back = HeapReturner()
+
+        def on_step(what: str, k: int, n: int) -> None:
+            give_back()  # between scans: what the last one freed goes back (lwbench.run.heap)
+            if report is not None:
+                report(what, k, n)
+
         files = None if task.payloads.folder is None else CloudFiles(Path(task.payloads.folder))
         seq = SequenceEvaluation(dataset, list(task.frame_indices), decode, task.config.name, task.config.params,
-                                 task.seed, _cache=cache, on_step=report, files=files)
+                                 task.seed, _cache=cache, on_step=on_step, files=files)
         watch = Stopwatch()
         with watch.time("metric_ms"):
             values = metric.compute(seq)
@@ -192,27 +200,12 @@ def default_memory_mb(workers: int) -> int:
 
 
 # -- the worker process ---------------------------------------------------------------------------
-def _fixed_mmap_threshold() -> None:
-    """Large arrays always from mmap, returned to the system when freed. glibc otherwise raises its
-    mmap threshold after the first large free, and a sequence task's churn of tile-sized arrays
-    then fragments the heap: tracking 200 town scans grew a process 211 -> 441 MB by default,
-    205 -> 319 MB with a fixed 128 kB threshold (same values). No-op off glibc."""
-    import ctypes
-    import ctypes.util
-
-    with contextlib.suppress(OSError, AttributeError, TypeError):
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        libc.mallopt(-3, 128 * 1024)  # M_MMAP_THRESHOLD
-        libc.mallopt(-1, 128 * 1024)  # M_TRIM_THRESHOLD
-
-
 def _worker_main(conn, parent: int, recipe, metric_params: dict, memory_mb: int, preload: tuple[str, ...]) -> None:
     enter_child(parent)
     # Ctrl-C reaches every process of the terminal's group: the driver alone answers it (it stores
     # what finished and stops the workers), so a worker neither dies with a traceback nor prints
     # a stray "Process lwbench-worker:" line.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    _fixed_mmap_threshold()
     worker = Worker(registry_from_recipe(recipe), metric_params)
     for module in preload:  # start-up once per worker: not inside the first evaluation's timeout
         with contextlib.suppress(Exception):
