@@ -44,7 +44,7 @@ def test_range_rmsd_coverage_and_false_returns(tiny_sensor):
 def test_range_metrics_of_an_empty_decode_are_undefined_not_nan(tiny_sensor):
     p = tiny_sensor.ray_directions()[0, :3] * 5.0
     m = RangeMetric().compute(_ev(Frame(p.astype(np.float32), tiny_sensor), np.zeros((0, 3))))
-    assert m == {"range_rmsd": None, "coverage": 0.0, "false_returns": None}
+    assert m == {"range_rmsd": None, "range_median": None, "coverage": 0.0, "false_returns": None}
 
 
 def _rotate_z(points: np.ndarray, angle: float) -> np.ndarray:
