@@ -330,7 +330,7 @@ def test_a_ring_field_with_placeholders_gives_the_real_table_and_step():
     assert s.n_beams == 32
     np.testing.assert_allclose(s.elevations_deg, HDL32_NOMINAL, atol=0.16)  # lasers are up to 0.15 off
     assert s.azimuth_step_deg == pytest.approx(360 / 1086)  # firings from the points per ring
-    assert s.min_range > 1.0  # the placeholders (5e-5 m) are no returns
+    assert s.min_range == 0.05  # above the placeholders (5e-5 m): no returns; not at the nearest return
 
 
 def test_a_long_folder_opens_and_gives_its_poses_without_reading_its_scans(tmp_path, monkeypatch):
@@ -396,7 +396,7 @@ def test_no_return_copies_far_from_the_origin_are_left_out_of_the_derived_sensor
     assert marked.sensor.n_beams == 32
     assert np.allclose(marked.sensor.elevations_deg, clean.sensor.elevations_deg, atol=1e-6)
     assert marked.sensor.azimuth_step_deg == pytest.approx(clean.sensor.azimuth_step_deg)
-    assert marked.sensor.min_range > 1.0  # the markers are not the nearest return
+    assert 0.19 < marked.sensor.min_range <= 0.21  # just beyond the markers 0.19 m out: they are no returns
     assert len(marked[1]) == len(frames[1].points)  # the second sweep is the same sensor's
     store = tmp_path / "r.sqlite"
     res = CliRunner().invoke(app, ["run", "--dataset", str(tmp_path / "scans"), "--codec", "laz",
