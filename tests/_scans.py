@@ -119,15 +119,20 @@ def rotating_2d_laser_scan(
     scan_step_deg: float = 0.25,
     turn_step_deg: float = 0.5,
     offset_m: float = 0.05,
+    in_plane_offset_m: float = 0.0,
+    turn_start_deg: float = 0.0,
+    keep: float = 1.0,
     half_extent: tuple[float, float, float] = (6.0, 4.0, 2.0),
 ) -> np.ndarray:
     """A 2-D laser scanner (270 deg in its plane, ``scan_step_deg`` apart, a Hokuyo's) turned about
-    the vertical axis half a turn in ``turn_step_deg`` steps, its mirror ``offset_m`` off the axis --
-    how ETH's libpointmatcher datasets were recorded. In a box room; no beam table: every
-    elevation from -90 to +90 deg is a firing angle. Float32 ``(N, 3)``, shuffled."""
+    the vertical axis half a turn in ``turn_step_deg`` steps from ``turn_start_deg``, its mirror
+    ``offset_m`` off the axis across the plane and ``in_plane_offset_m`` along it -- how ETH's
+    libpointmatcher datasets were recorded. In a box room with a few boxes in it (the same in every
+    scan); ``keep`` thins each line at random, as the published clouds are thinned. No beam
+    table: every elevation from -90 to +90 deg is a firing angle. Float32 ``(N, 3)``, shuffled."""
     rng = np.random.default_rng(seed)
     beta = np.radians(np.arange(-135.0, 135.0 + 1e-9, scan_step_deg))  # in-plane angle from up
-    phi = np.radians(np.arange(0.0, 180.0, turn_step_deg))[:, None]  # turn of the plane
+    phi = np.radians(np.arange(turn_start_deg, turn_start_deg + 180.0, turn_step_deg))[:, None]  # turn of the plane
     d_plane = np.stack([np.sin(beta), np.cos(beta)], axis=-1)  # (horizontal along the plane, up)
     dirs = np.stack(
         np.broadcast_arrays(
@@ -135,12 +140,24 @@ def rotating_2d_laser_scan(
         ),
         axis=-1,
     ).reshape(-1, 3)
-    centre = np.stack(np.broadcast_arrays(offset_m * -np.sin(phi), offset_m * np.cos(phi), 0 * phi), axis=-1)
+    along, across = in_plane_offset_m, offset_m
+    centre = np.stack(np.broadcast_arrays(along * np.cos(phi) - across * np.sin(phi),
+                                          along * np.sin(phi) + across * np.cos(phi), 0 * phi), axis=-1)
     centre = np.broadcast_to(centre, (len(phi), len(beta), 3)).reshape(-1, 3)
     half = np.asarray(half_extent)
     with np.errstate(divide="ignore", invalid="ignore"):
         t = np.where(np.abs(dirs) > 1e-12, (np.sign(dirs) * half - centre) / dirs, np.inf).min(axis=1)
+        boxes = np.random.default_rng(99)  # furniture: one layout for every scan
+        for _ in range(8):
+            lo = boxes.uniform(-half, half)
+            hi = np.minimum(lo + boxes.uniform(0.3, 1.5, 3), half)
+            t1, t2 = (lo - centre) / dirs, (hi - centre) / dirs
+            t_in = np.nanmax(np.minimum(t1, t2), axis=1)
+            t_out = np.nanmin(np.maximum(t1, t2), axis=1)
+            t = np.where((t_in <= t_out) & (t_in > 0.1) & (t_in < t), t_in, t)
     pts = centre + dirs * (t * (1 + rng.normal(0, 0.002, len(t))))[:, None]
+    if keep < 1.0:
+        pts = pts[rng.random(len(pts)) < keep]
     return pts[rng.permutation(len(pts))].astype(np.float32)
 
 

@@ -86,6 +86,35 @@ def test_a_rotating_2d_laser_gets_a_bounded_grid_not_hundreds_of_beams():
     assert d.sensor.azimuth_step_deg > 0.1  # not 0.029 deg: about one return a cell
 
 
+def _thinned_2d_laser(k: int) -> np.ndarray:
+    """Consecutive scans of one thinned rotating 2-D laser (issue 32's VTK set): each turn starts
+    elsewhere, a quarter of each line kept."""
+    return rotating_2d_laser_scan(seed=k, turn_step_deg=2.0, in_plane_offset_m=0.05, offset_m=0.0,
+                                  turn_start_deg=0.7 * k, keep=0.25)
+
+
+def test_a_thinned_rotating_2d_laser_gets_the_uniform_grid_not_its_histogram_bumps():
+    # Before: 51, 92 and 98 "beams" on three consecutive scans (RMS spread 0.285-0.29 spacings:
+    # uniform elevations give 0.289), the second refused as another sensor.
+    for k in range(3):
+        d = _guess(_thinned_2d_laser(k))
+        assert d.method == METHOD_UNIFORM and "do not hold the returns" in d.rule, d.rule
+
+
+def test_three_consecutive_2d_laser_scans_load_as_one_sensor(tmp_path):
+    from lwbench import open_dataset
+
+    folder = tmp_path / "laser"
+    folder.mkdir()
+    for k in range(3):
+        write_bin(folder / f"{k:06d}.bin", _thinned_2d_laser(k))
+    with pytest.warns(DataWarning, match="guessed"):
+        ds = open_dataset(folder)
+        frames = [ds[k] for k in range(3)]  # a scan of another sensor would raise here
+    assert ds.sensor_choice.derivation.method == METHOD_UNIFORM
+    assert all(f.sensor == ds.sensor for f in frames)
+
+
 def test_a_sensor_no_preset_describes_is_not_snapped_to_a_wrong_one():
     s = SensorModel("forty", tuple(np.linspace(-20, 20, 40)), 0.2, 0.5, 100.0, 10.0)
     d = _guess(shuffled(street_scan(s)))
