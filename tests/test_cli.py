@@ -80,6 +80,8 @@ def test_rerun_is_a_cache_hit(store, kitti_folder):
         (("run", "--codec", "raw", "--param", "random.ratio=0.1"), "not in this run's --codec list"),
         (("run", "--codec", "raw", "--param", "ratio=0.1"), "CODEC.KEY=VALUE"),
         (("leaderboard", "--store", "/nonexistent/r.sqlite"), "no results store"),
+        # A curve needs a sweep: the hint names the run file, not a plain `lwbench run` (issue 33).
+        (("rd", "--store", "/nonexistent/r.sqlite"), "lwbench run --config examples/runs/rd_tunnel.toml"),
     ],
 )
 def test_user_errors_are_one_clear_line_and_exit_2(args, message):

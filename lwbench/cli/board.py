@@ -16,12 +16,12 @@ from .output import console, escape, print_board, wanted_columns, writable_folde
 from .running import BENCHMARK, board_sort
 
 
-def _store(store: Path | None) -> Path:
+def _store(store: Path | None, first: str = "run `lwbench run` first") -> Path:
     from lwbench.run.request import DEFAULT_STORE
 
     path = store or DEFAULT_STORE
     if not path.exists():
-        raise StoreError(f"no results store at {path} (run `lwbench run` first)")
+        raise StoreError(f"no results store at {path} ({first})")
     return path
 
 
@@ -93,7 +93,9 @@ def rd(
     reg = registry()
     info = reg.metric_info()
     check_metric_ids([distortion, rate], info, "lwbench rd")
-    path = _store(store)
+    # A curve needs a sweep, which a run file declares: plain `lwbench run` gives one point a codec.
+    path = _store(store, "run a sweep first: `lwbench run --config examples/runs/rd_tunnel.toml`, "
+                         "or a run file of your own with sweeps")
     limits = {} if min_coverage is None else {"min_coverage": min_coverage}
     with ResultStore(path, readonly=True) as results:
         entries = build_leaderboard(results, dataset=dataset, info=info, **limits)
