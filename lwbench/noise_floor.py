@@ -210,6 +210,10 @@ def floor_lines(entries: Iterable[Any], shown: Mapping[tuple[str, str], Any] | N
             by_ds.setdefault(e.dataset, []).append(f"{e.label} {text}")
             continue
         gap = f" ({bpp - floor:+.2f})" if bpp is not None else ""
+        if bpp is not None and bpp < floor:
+            # No codec can beat the floor of the noise the data carries: below it, the declared
+            # range noise is more than the scans hold (a sensor model's datasheet figure).
+            gap += " BELOW THE FLOOR: the declared range noise is too high for these scans"
         by_ds.setdefault(e.dataset, []).append(f"{e.label} {floor:.2f}{gap}")
     out = []
     for ds, items in by_ds.items():

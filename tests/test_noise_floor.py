@@ -138,8 +138,8 @@ def _entries(store):
 def test_rows_carry_the_floor_inputs_and_rd_prints_the_floor(store):
     entries = _entries(store)
     coarse = next(e for e in entries if e.label == "rangeimage(step=0.05)")
-    assert coarse.value("floor_sigma") == get_sensor("vlp16").range_noise_m
-    expected = floor_bits_per_point(coarse.value("range_rmsd"), 0.03, coarse.value("floor_mask_bpp"))
+    assert coarse.value("floor_sigma") == 0.01  # the noise the simulator adds, not the VLP-16's 3 cm
+    expected = floor_bits_per_point(coarse.value("range_rmsd"), 0.01, coarse.value("floor_mask_bpp"))
     assert entry_floor(coarse) == pytest.approx(expected)
     res = CliRunner().invoke(app, ["rd", "--store", str(store)], catch_exceptions=False, env={"COLUMNS": "400"})
     assert res.exit_code == 0, res.output
@@ -180,3 +180,24 @@ def test_the_floor_curve_sits_below_the_codecs_at_their_distortions(store):
         assert at == pytest.approx(entry_floor(e), rel=0.02)
     assert not draw_floor(ax, [types.SimpleNamespace(flags=[], value=lambda k, s="mean": None)], "chamfer", "bytes")
     plt.close(fig)
+
+
+def test_the_simulator_declares_the_noise_it_adds():
+    # Issue 33: it added 1 cm and declared the preset's 3 cm, so rangeimage sat 0.3-0.6 bit/point
+    # *below* the floor, silently.
+    from lwbench import open_dataset
+
+    for noise in (0.01, 0.025):
+        ds = open_dataset("sim", {"frames": 2, "noise": noise, "cache": "false"})
+        assert ds.sensor.range_noise_m == noise and ds[1].sensor.range_noise_m == noise
+
+
+def test_a_codec_below_the_floor_is_called_out():
+    def entry(label, bpp):
+        values = {"range_rmsd": 0.005, "floor_sigma": 0.03, "floor_mask_bpp": 0.2, "bits_per_point": bpp}
+        return types.SimpleNamespace(dataset="sim", label=label, flags=[], value=lambda k, s="mean": values.get(k))
+
+    floor = floor_bits_per_point(0.005, 0.03, 0.2)
+    (line,) = floor_lines([entry("above", floor + 1.0), entry("below", floor - 0.4)])
+    above, below = line.split("; ")[-2:]
+    assert "BELOW THE FLOOR" not in above and "BELOW THE FLOOR" in below and "declared range noise" in below

@@ -11,6 +11,7 @@ import functools
 import hashlib
 import json
 import os
+from dataclasses import replace
 from pathlib import Path as FsPath
 
 import numpy as np
@@ -97,7 +98,9 @@ class SimDataset(Dataset):
             raise ParameterError(f"sim: scene {cfg['scene']!r} is not available; have {sorted(SCENES)}")
         self._worlds = [_world(cfg["scene"], cfg["seed"], day, os.getpid()) for day in range(cfg["traversals"])]
         self.world, self._caster = self._worlds[0]
-        self.sensor = _resolve_sensor(cfg["sensor"], self.world)
+        # The frames declare the range noise the simulator adds (not the preset's datasheet
+        # figure, 3 cm where it adds 1 cm): the noise floor and the range pairing read it.
+        self.sensor = replace(_resolve_sensor(cfg["sensor"], self.world), range_noise_m=float(cfg["noise"]))
         self._blocked = ego_mask(self._caster.sensor_rays(self.sensor)[0], self.world.ego_boxes)
         self.speed = cfg["speed"] or self.world.speed
         self.step = self.speed / self.sensor.rate_hz
