@@ -235,7 +235,8 @@ def draw_floor(ax: Any, entries: list[Any], distortion: str, rate: str) -> bool:
     """Draw the noise floor on an RD plot of ``distortion`` against ``rate`` (``bytes`` per frame
     or ``bits_per_point``), labelled ``noise floor``: for ``range_rmsd`` the floor curve over the
     plot's distortion range, for any other distortion each configuration's floor rate at its own
-    distortion (the rate its range accuracy needs at least). False if there is nothing to draw."""
+    distortion (the rate its range accuracy needs at least), as unjoined markers. False if there is
+    nothing to draw."""
     rows = [(e, entry_floor(e)) for e in entries if not e.flags]  # flagged ones are off the curves too
     rows = [(e, f) for e, f in rows if f is not None and e.value(distortion) is not None]
     if not rows:
@@ -257,14 +258,15 @@ def draw_floor(ax: Any, entries: list[Any], distortion: str, rate: str) -> bool:
         x = bpp[keep] if rate == "bits_per_point" else bpp[keep] * points / 8.0
         ax.plot(x, d[keep], ls="--", lw=1.2, color="0.35", label="noise floor")
     else:
-        rows.sort(key=lambda r: r[0].value(distortion))
+        # One point per configuration, not a line: the floor is defined at each configuration's own
+        # range accuracy, and joining the points of different codecs drew a zig-zag where the floor
+        # has no value (issue 33).
         ax.plot(
             [to_rate(f, e) for e, f in rows],
             [e.value(distortion) for e, _ in rows],
-            ls="--",
+            ls="none",
             marker="x",
-            ms=4,
-            lw=1.0,
+            ms=5,
             color="0.35",
             label="noise floor",
         )

@@ -201,3 +201,13 @@ def test_a_codec_below_the_floor_is_called_out():
     (line,) = floor_lines([entry("above", floor + 1.0), entry("below", floor - 0.4)])
     above, below = line.split("; ")[-2:]
     assert "BELOW THE FLOOR" not in above and "BELOW THE FLOOR" in below and "declared range noise" in below
+
+
+def test_on_other_distortions_the_floor_is_points_not_a_line_across_codecs(store):
+    entries = [e for e in _entries(store) if not e.flags and (e.value("range_rmsd") or 0) > 0]
+    plt = pyplot()
+    fig, ax = plt.subplots()
+    assert draw_floor(ax, entries, "chamfer", "bytes")
+    (line,) = [x for x in ax.get_lines() if x.get_label() == "noise floor"]
+    assert line.get_linestyle() == "None" and len(line.get_xdata()) == len(entries)
+    plt.close(fig)
