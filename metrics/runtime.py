@@ -10,6 +10,7 @@ from lwbench import LOWER, Evaluation, FrameMetric, MetricId
 class RuntimeMetric(FrameMetric):
     name = "runtime"
     order = 40
+    version = "2"  # 1: peak_mb without the heap's free pages handed back first (raw read 0 MiB)
     ids = (
         MetricId("encode_ms", "ms", LOWER, default=True, role="runtime"),
         MetricId("decode_ms", "ms", LOWER, default=True, role="runtime"),
@@ -18,7 +19,8 @@ class RuntimeMetric(FrameMetric):
     )
     description = (
         "wall time per call (ms; a selection codec's encode_ms is its whole encode, select_ms -- its "
-        "select() -- plus the shared serializer); peak_mb = peak resident memory added during encode+decode (MiB)"
+        "select() -- plus the shared serializer); peak_mb = resident memory encode+decode added, the C heap's "
+        "free pages returned first (MiB: the working set, not what earlier frames happened to free)"
     )
 
     def compute(self, ev: Evaluation) -> dict[str, float | None]:

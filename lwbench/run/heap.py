@@ -20,10 +20,9 @@ rarely on a steady working set -- and is a no-op off glibc.
 
 from __future__ import annotations
 
-import contextlib
-import ctypes
-import ctypes.util
 import os
+
+from lwbench.measure import malloc_trim
 
 __all__ = ["HeapReturner"]
 
@@ -38,19 +37,12 @@ def _rss_bytes() -> int | None:
         return None
 
 
-def _malloc_trim():
-    with contextlib.suppress(OSError, AttributeError, TypeError):
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        return libc.malloc_trim
-    return None
-
-
 class HeapReturner:
     """Call it between scans: trims the heap when resident memory grew by ``slack_mb`` since the
     last trim (reading ``/proc/self/statm`` costs microseconds; a trim, milliseconds)."""
 
     def __init__(self, slack_mb: float = 64.0) -> None:
-        self.trim = _malloc_trim()
+        self.trim = malloc_trim()
         self.slack = int(slack_mb * 2**20)
         self.mark = _rss_bytes() if self.trim is not None else None
 
