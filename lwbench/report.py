@@ -67,16 +67,23 @@ def rd_figures(entries: list[LeaderboardEntry], info: Mapping[str, MetricId], ou
             # Distances span decades: a log axis, on which an exact (0) point cannot stand.
             log_y = info[distortion].better == "lower" and info[distortion].unit == "m"
             dropped = []
+            drawn = 0
             for (d, codec), c in sorted(curves.items()):
                 if d != ds:
                     continue
                 r, v = c.rates, c.distortions
+                finite = np.isfinite(r) & np.isfinite(v)
+                r, v = r[finite], v[finite]
                 if log_y:
                     if (v <= 0).any():
                         dropped.append(codec)
                     r, v = r[v > 0], v[v > 0]
                 if len(v):
                     ax.plot(r, v, marker="o", ms=4, lw=1.4, label=codec)
+                    drawn += 1
+            if not drawn:  # every point exact or undefined: no plot, not an empty frame (issue 33)
+                plt.close(fig)
+                continue
             ax.set_xscale("log")
             if log_y:
                 ax.set_yscale("log")

@@ -211,3 +211,18 @@ def test_on_other_distortions_the_floor_is_points_not_a_line_across_codecs(store
     (line,) = [x for x in ax.get_lines() if x.get_label() == "noise floor"]
     assert line.get_linestyle() == "None" and len(line.get_xdata()) == len(entries)
     plt.close(fig)
+
+
+def test_a_plot_where_every_point_is_exact_is_left_out_not_drawn_empty(store, tmp_path):
+    # Issue 33: an empty range_rmsd plot (and matplotlib's "No artists with labels" warning) for a
+    # sweep whose points are all exact or undefined there.
+    import warnings
+
+    import lwbench.report as report
+
+    exact = [e for e in _entries(store) if e.codec == "raw"]
+    assert exact and all(e.value("range_rmsd") == 0 for e in exact)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        figures = report.rd_figures(exact, get_registry().metric_info(), tmp_path)
+    assert not any(f.name.startswith("rd_range_rmsd") for f in figures)
