@@ -30,7 +30,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from lwbench.leaderboard import FLAG_NOTES, LeaderboardEntry, present_columns, table_rows
+from lwbench.leaderboard import FLAG_NOTES, LeaderboardEntry, present_columns, short_dataset_labels, table_rows
 from lwbench.metric import MetricId
 
 __all__ = ["board_columns", "board_table", "board_title", "flag_notes", "short_header"]
@@ -97,7 +97,9 @@ def _leave_out_order(columns: Sequence[str], info: Mapping[str, MetricId], sort:
 def _table(
     entries: Sequence[LeaderboardEntry], columns: Sequence[str], info: Mapping[str, MetricId], title: str
 ) -> Table:
-    header, rows = table_rows(list(entries), tuple(columns), info, name=short_header, fail_column=False)
+    short, _ = short_dataset_labels(e.dataset for e in entries)
+    header, rows = table_rows(list(entries), tuple(columns), info, name=short_header, fail_column=False,
+                              dataset_label=short)
     text = header.index("frames")  # dataset, codec: text; frames, fail and the metrics: numbers
     flags = len(header) - 1 if header[-1] == "flags" else None
     table = Table(

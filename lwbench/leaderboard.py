@@ -36,7 +36,7 @@ import io
 import json
 import math
 from collections import Counter, defaultdict
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -358,6 +358,31 @@ def header_name(metric: str, info: Mapping[str, MetricId] | None) -> str:
     return f"{metric} [{unit}]" if unit and unit not in ("share", "pts", "frames", "x") else metric
 
 
+def _label_parts(label: str) -> tuple[str, list[str]]:
+    """``"sim(frames=100,scene=town)"`` -> ``("sim", ["frames=100", "scene=town"])``."""
+    if label.endswith(")") and "(" in label:
+        head, inner = label[:-1].split("(", 1)
+        return head, [part for part in inner.split(",") if part]
+    return label, []
+
+
+def short_dataset_labels(labels: Iterable[str]) -> tuple[dict[str, str], list[str]]:
+    """Each dataset label with only what tells it from the others (the parameters that differ),
+    and the parameters they all share: on a terminal board two datasets' full labels took 30
+    columns and left one metric. Falls back to the full labels where the short ones collide."""
+    labels = list(dict.fromkeys(labels))
+    parts = {label: _label_parts(label) for label in labels}
+    common = set.intersection(*(set(ps) for _, ps in parts.values())) if labels else set()
+    short = {}
+    for label, (head, ps) in parts.items():
+        own = [x for x in ps if x not in common]
+        short[label] = f"{head}({','.join(own)})" if own else head
+    if len(set(short.values())) < len(labels):
+        return {label: label for label in labels}, []
+    order = parts[labels[0]][1] if labels else []
+    return short, [x for x in order if x in common]
+
+
 def table_rows(
     entries: list[LeaderboardEntry],
     columns: tuple[str, ...],
@@ -366,10 +391,12 @@ def table_rows(
     with_std: bool = False,
     name: Callable[[str, Mapping[str, MetricId] | None], str] = header_name,
     fail_column: bool = True,
+    dataset_label: Mapping[str, str] | None = None,
 ) -> tuple[list[str], list[list[str]]]:
     """Header and formatted cells; the dataset column only when there is more than one, the
     flags column only when some entry is flagged, the ``fail`` column always (``fail_column``)
-    or only when some entry has failed rows. ``name`` writes a metric's header."""
+    or only when some entry has failed rows. ``name`` writes a metric's header; ``dataset_label``
+    what the dataset column shows for a dataset (default: its full label)."""
     many = len({e.dataset for e in entries}) > 1
     flagged = any(e.flags for e in entries)
     fails = fail_column or any(e.failures for e in entries)
@@ -383,7 +410,7 @@ def table_rows(
     ]
     rows = [
         [
-            *([e.dataset] if many else []),
+            *([(dataset_label or {}).get(e.dataset, e.dataset)] if many else []),
             e.label,
             str(e.frames),
             *([str(e.failures)] if fails else []),

@@ -147,3 +147,23 @@ def test_the_main_job_itself_prints_a_board_that_fits_120_columns(tmp_path, monk
     board = text[text.index("Leaderboard") :]
     assert max(len(line) for line in board.splitlines()) <= 120 and "not shown" not in board
     assert all(t in _header_ids(board) for t in TASK)
+
+
+def test_two_datasets_show_what_tells_them_apart_not_their_whole_labels(tmp_path, monkeypatch):
+    # Issue 33: two datasets' full labels took 30 columns and left only `ratio` at 117.
+    path = tmp_path / "two.sqlite"
+    labels = ("sim(cache=false,frames=20,scene=tunnel,seed=0)", "sim(cache=false,frames=20,scene=urban,seed=0)")
+    with ResultStore(path) as store:
+        for k, label in enumerate(labels):
+            for line in MAIN_JOB.strip().splitlines()[:4]:
+                codec, *cells = line.split()
+                values = [None if c == "-" else float(c) for c in cells]
+                frame = dict(zip(FRAME_IDS, values[: len(FRAME_IDS)], strict=True))
+                for i in range(3):
+                    store.put(ResultRow("frame", label, f"sim:{k}", i, codec, "1", {}, "ok", frame, 0))
+    text = _board_at(path, 120, monkeypatch)
+    assert "sim(scene=tunnel)" in text and "sim(scene=urban)" in text
+    assert "every dataset: cache=false, frames=20, seed=0" in text
+    header = _header_ids(text.replace("dataset ", "", 1))
+    for shown in ("bytes", "ratio", "range_rmsd", "coverage", "chamfer"):
+        assert shown in header, header

@@ -69,6 +69,7 @@ def print_board(entries, sort: str, wanted: tuple[str, ...] | None, info) -> Non
     """The board in the terminal (:mod:`lwbench.board_table`): never folds a number -- columns
     that do not fit are left out (and named), so read a wide board with --columns or --format md."""
     from lwbench.board_table import board_columns, board_table, flag_notes
+    from lwbench.leaderboard import short_dataset_labels
 
     table, dropped = board_table(entries, board_columns(entries, sort, info, wanted), info, sort=sort,
                                  width=console.width or 200)
@@ -76,6 +77,9 @@ def print_board(entries, sort: str, wanted: tuple[str, ...] | None, info) -> Non
     if dropped:
         names = escape(", ".join(dropped))
         console.print(f"[dim]not shown (terminal too narrow): {names}; use --columns or --format md[/]")
+    _, common = short_dataset_labels(e.dataset for e in entries)
+    if common and len({e.dataset for e in entries}) > 1:
+        console.print(f"[dim]every dataset: {escape(', '.join(common))}[/]")
     for note in flag_notes(entries):
         console.print(f"[dim]{escape(note)}[/]")
     for e in entries:
