@@ -193,30 +193,6 @@ def _greedy_matching(i: np.ndarray, j: np.ndarray, cost: np.ndarray) -> tuple[np
     return np.concatenate(mi), np.concatenate(mj)
 
 
-def _near_candidates(p: np.ndarray, q: np.ndarray, near_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """``(i, j)``: each original return ``p[i]`` with its nearest decoded return ``q[j]`` in 3-D,
-    where that is within ``near_m``.
-
-    Why beside the direction window: the window is angular, so its width in metres shrinks with
-    range, and near the sensor a codec's position error is wider than it. On KITTI 00 frame 0
-    turned by a quarter azimuth step, Draco at 14 bits (errors ~5 mm) put the copy of a return at
-    1.5 m one whole azimuth step away, outside the window; the original paired with a return 2.8 m
-    behind it instead, and that one pair took the frame's range RMSD from 2.8 to 8.4 mm. With
-    ``near_m`` the sensor's range noise, a decoded return the sensor could not tell from the
-    original is its candidate wherever the cell edges fall; nearest-first matching still gives
-    every return its own copy first.
-    """
-    from scipy.spatial import cKDTree
-
-    if not len(p) or not len(q):
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    dist, j = cKDTree(np.asarray(q, np.float64)).query(
-        np.asarray(p, np.float64), k=1, distance_upper_bound=near_m, workers=thread_budget()
-    )
-    i = np.flatnonzero(np.isfinite(dist))
-    return i, j[i]
-
-
 def match_returns(
     p_points: np.ndarray,
     q_points: np.ndarray,
@@ -225,18 +201,15 @@ def match_returns(
     sensor: SensorModel,
     tolerance: float,
     p_tree: cKDTree | None = None,
-    near_m: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Pair original and decoded returns one-to-one within the direction window.
 
     First bit-identical returns pair with each other (:func:`_exact_pairs`). The rest: a decoded
     return is a candidate for an original one when it lies within ``tolerance`` spacings of it
     along both axes (a Chebyshev ball in the spacing-scaled coordinates; the nearest
-    :data:`MAX_CANDIDATES`), or when it is the original's nearest decoded return in 3-D and
-    within ``near_m`` metres of it (:func:`_near_candidates`); candidates are matched
-    nearest-first by 3-D distance, each return at most once. Returns, per original return, its
-    partner's index in ``q`` (``-1``: none) and, per decoded return, whether any original return
-    lies within its window.
+    :data:`MAX_CANDIDATES`), and candidates are matched nearest-first by 3-D distance, each
+    return at most once. Returns, per original return, its partner's index in ``q`` (``-1``:
+    none) and, per decoded return, whether any original return lies within its window.
     """
     partner = np.full(len(p_coords), -1, dtype=np.int64)
     near_p = np.zeros(len(q_coords), dtype=bool)
@@ -269,9 +242,6 @@ def match_returns(
     ok = np.isfinite(dist)
     a = np.repeat(np.arange(len(free_p)), k)[ok.ravel()]
     b = j.ravel()[ok.ravel()]
-    if near_m > 0:
-        na, nb = _near_candidates(np.asarray(p_points)[free_p], np.asarray(q_points)[free_q], near_m)
-        a, b = np.concatenate([a, na]), np.concatenate([b, nb])
     gap = np.asarray(p_points, np.float64)[free_p[a]] - np.asarray(q_points, np.float64)[free_q[b]]
     ma, mb = _greedy_matching(a, b, np.einsum("ij,ij->i", gap, gap))
     partner[free_p[ma]] = free_q[mb]
@@ -282,8 +252,7 @@ class RangeMetric(FrameMetric):
     name = "ranges"
     # 1 was the cell-based definition; 2 de-duplicated only the original, clipped returns far
     # outside the table onto its edge row (where they paired with each other) and counted points
-    # nearer than the minimum range as returns; 3 had only the direction window (a copy pushed
-    # out of it near the sensor paired with another return) and no range_median.
+    # nearer than the minimum range as returns; 3 had no range_median.
     version = "4"
     order = 20
     ids = (
@@ -298,8 +267,7 @@ class RangeMetric(FrameMetric):
     )
     description = (
         "original and decoded returns (each de-duplicated, no-return markers nearer than the min range left out) "
-        "paired one-to-one, nearest in 3-D first, within tolerance x the beam and azimuth spacing of each other "
-        "or nearest in 3-D within the sensor's range noise: "
+        "paired one-to-one, nearest in 3-D first, within tolerance x the beam and azimuth spacing of each other: "
         "RMSD (m) of range differences over pairs, range_median its robust companion (median |difference|); "
         "coverage = share of original returns with a partner; "
         "false_returns = share of decoded returns with no partner and no original nearby"
@@ -319,8 +287,7 @@ class RangeMetric(FrameMetric):
         p_tree = ev.cached("direction_tree", lambda: _tree(p_coords[p_ok], sensor)) if p_ok.any() else None
         q_points = distinct_rows(ev.decoded)
         q_coords, q_range = direction_coordinates(q_points, sensor)
-        partner, near_p = match_returns(p_points, q_points, p_coords, q_coords, sensor, tol, p_tree,
-                                        near_m=sensor.range_noise_m)
+        partner, near_p = match_returns(p_points, q_points, p_coords, q_coords, sensor, tol, p_tree)
         # Returns only: no-return points (nearer than the min range) are in neither count; a
         # return outside the table's margin counts, with no partner (and, decoded, as false).
         n_p = int(((p_range > 0) & (p_range >= sensor.min_range)).sum())
