@@ -166,6 +166,10 @@ def sensor_mismatch(model: Derivation, other: Derivation) -> str | None:
             f"it has beams at {outside.min():.1f}..{outside.max():.1f} deg, outside the first scan's "
             f"{a[0]:.1f}..{a[-1]:.1f} deg"
         )
+    if METHOD_UNIFORM in (model.method, other.method):
+        # A uniform grid is no beam table (its rows are the data's density): there are no beams
+        # to count against the other's, only the field of view above.
+        return None
     lo, hi = max(a[0], b[0]), min(a[-1], b[-1])
     na, nb = int(np.sum((a >= lo) & (a <= hi))), int(np.sum((b >= lo) & (b <= hi)))
     if max(na, nb) > (1.5 if exact else 2.0) * min(na, nb) + 2:

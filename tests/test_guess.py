@@ -177,3 +177,20 @@ def test_a_real_voxel_keyframe_folder_is_flagged_on_the_dataset(real_data, tmp_p
         ds = PointFileDataset(path=str(tmp_path / "000000.bin"))
         assert ds.sensor_guessed
     assert ds.sensor.n_beams == 64 or ds.sensor_choice.derivation.method != METHOD_PRESET
+
+
+def test_a_uniform_grid_and_a_later_histogram_guess_are_not_told_apart_by_beam_count(tmp_path):
+    # A folder of unstructured clouds: the first scan's bumps hold no returns (uniform grid), a
+    # later one's two peaks pass as a histogram table; counting "beams" between them refused
+    # every later scan ("2 beams vs 16"). A uniform grid has no beams to count.
+    from lwbench import open_dataset
+
+    folder = tmp_path / "scans"
+    folder.mkdir()
+    rng = np.random.default_rng(0)
+    for i in range(4):
+        write_bin(folder / f"{i:06d}.bin", rng.uniform(-5, 5, (3000, 3)).astype(np.float32))
+    with pytest.warns(DataWarning, match="guessed"):
+        ds = open_dataset(folder)
+        frames = [ds[k] for k in range(4)]
+    assert all(len(f) == 3000 for f in frames)
