@@ -54,4 +54,4 @@ def test_the_shipped_study_file_plans(tmp_path):
     study = Path(__file__).resolve().parents[1] / "examples" / "runs" / "rd_tunnel.toml"
     run_file = load_run_file(study, get_registry())
     (plan,) = run_file.plans
-    assert len(plan.configs) == 1 + 5 + 5 + 5 + 5 + 4 + 4 + 3 * 4
+    assert len(plan.configs) == 1 + 4 + 8 + 5 + 5 + 4 + 4 + 3 * 4
