@@ -89,7 +89,7 @@ from lwbench.selector_diagnostics import (
     top_k_precision,
 )
 from lwbench.sensor import SENSOR_PRESETS, RangeImage, SensorModel, get_sensor, register_sensor
-from lwbench.tiles import TILE_M, SpillingTiles, split_by_tile, tiles_near
+from lwbench.tiles import TILE_M, SpillingTiles, split_by_tile, tiles_at, tiles_near
 from lwbench.version import __version__
 
 __all__ = [
@@ -142,6 +142,7 @@ __all__ = [
     "SpillingTiles",
     "TILE_M",
     "split_by_tile",
+    "tiles_at",
     "tiles_near",
     "occupancy_scores",
     "occupancy_tiles",

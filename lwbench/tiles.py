@@ -28,9 +28,11 @@ from typing import Generic, Protocol, TypeVar
 
 import numpy as np
 
-from lwbench.geometry import voxel_indices
+from lwbench.geometry import voxel_indices, voxel_keys
 
-__all__ = ["TILE_M", "SpillingTiles", "neighbours", "split_by_tile", "tile_budget_bytes", "tile_ids", "tiles_near"]
+__all__ = [
+    "TILE_M", "SpillingTiles", "neighbours", "split_by_tile", "tile_budget_bytes", "tile_ids", "tiles_at", "tiles_near",
+]
 
 #: Tile side, metres: a few tiles cover a scan's reach (30 m for the occupancy map), and a tile
 #: of 5 cm voxels along a street holds ~0.7 M voxels (17 MB of keys and counts).
@@ -65,6 +67,15 @@ def tile_ids(keys: np.ndarray, voxel: float) -> np.ndarray:
     n = _voxels_per_tile(voxel)
     idx = voxel_indices(keys)
     return _tile_id(idx[:, 0] // n, idx[:, 1] // n)
+
+
+def tiles_at(points: np.ndarray, voxel: float) -> np.ndarray:
+    """The tile of each world point (x, y; z is ignored): a caller that picks regions in metres
+    finds which tiles hold them without knowing how tiles are numbered."""
+    pts = np.asarray(points, dtype=np.float64)
+    xyz = np.zeros((len(pts), 3))
+    xyz[:, :2] = pts[:, :2]
+    return tile_ids(voxel_keys(xyz, voxel), voxel)
 
 
 def neighbours(tile: int) -> list[int]:

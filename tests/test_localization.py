@@ -119,3 +119,42 @@ def test_leave_one_out_does_not_let_a_distorted_scan_lock_onto_itself(street):
         err[loo] = np.linalg.norm(result.poses[5, :3, 3] - street.poses[5, :3, 3])
     assert err[True] == pytest.approx(0.1, abs=0.02)
     assert err[False] < 0.05
+
+
+def test_reach_columns_hold_everything_within_each_points_radius():
+    from lwbench_metrics.localization import _in_columns, reach_columns
+
+    rng = np.random.default_rng(0)
+    centres = rng.uniform(-50, 50, (150, 3))
+    radii = rng.uniform(0.5, 15, 150)
+    radii[:10] = 8.0  # a radius that is a whole number of columns: the edge case of the dilation
+    probes = rng.uniform(-80, 80, (40_000, 3))
+    d = np.linalg.norm(probes[:, None, :2] - centres[None, :, :2], axis=2)
+    needed = (d <= radii[None]).any(axis=1)
+    kept = _in_columns(probes, reach_columns(centres, radii))
+    assert needed.sum() > 1000 and not np.any(needed & ~kept)
+    assert kept.sum() < 1.6 * needed.sum()  # whole columns, not the whole map
+
+
+def test_the_cropped_target_tracks_exactly_as_the_whole_ball(street, monkeypatch):
+    """The crop only drops map voxels no correspondence can reach: poses equal the ball's; and a
+    registration that moves points beyond half their room is redone on the ball."""
+    import lwbench_metrics.localization as loc
+
+    gt = np.stack([street.pose(i) for i in range(len(street))])
+    scans = _originals(street)
+    world_map = build_map(scans, gt, ICP_PARAMS)
+    cropped = track_against_map(scans, gt[0], world_map, ICP_PARAMS, poses=gt)
+    assert cropped.redone == 0
+    original_cloud = loc.VoxelMap.cloud
+    monkeypatch.setattr(loc.VoxelMap, "cloud", lambda self, without=None, around=None, columns=None:
+                        original_cloud(self, without, around))
+    ball = track_against_map(scans, gt[0], world_map, ICP_PARAMS, poses=gt)
+    monkeypatch.setattr(loc.VoxelMap, "cloud", original_cloud)
+    np.testing.assert_allclose(cropped.poses, ball.poses, atol=1e-9)
+    monkeypatch.setattr(loc, "TRANSLATION_ROOM_M", 1e-4)
+    monkeypatch.setattr(loc, "ROTATION_ROOM_DEG", 1e-4)
+    tight = track_against_map(scans, gt[0], world_map, ICP_PARAMS, poses=gt)
+    assert tight.redone > 0
+    np.testing.assert_allclose(tight.poses, ball.poses, atol=1e-9)
+    world_map.close()
