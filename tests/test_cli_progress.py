@@ -116,6 +116,7 @@ def test_stream_reports_reading_and_each_stream(tmp_path):
     assert res.exit_code == 0, res.output
     phases = _phases(res.stderr)
     assert phases[0].startswith("reading the 2 scans of sim") and phases[1] == "streaming raw through 50 KB/s"
+    assert "lwbench: streaming raw through 50 KB/s done: 2/2 in " in res.stderr  # it counts (issue 33)
     (run,) = json.loads((tmp_path / "s" / "stream.json").read_text())["runs"]
     assert run["frames"] == 2
 

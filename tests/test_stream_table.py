@@ -30,3 +30,26 @@ def test_a_stream_with_nothing_decoded_shows_dashes_not_zeros():
     cells = dict(zip(header, row, strict=True))
     assert cells["dropped (why)"] == "1 (encoder busy 1)"
     assert cells["median ms: encode / queue / transfer / decode"] == "–"
+
+
+def test_the_tables_fit_a_100_column_log_and_cut_no_value():
+    """Issue 33: one table of thirteen columns was 204 wide and cut mid-value at 100 off a terminal."""
+    import io
+
+    from rich.console import Console
+
+    from lwbench.cli.stream import stream_tables
+    from lwbench.link import STREAM_TABLES
+
+    run = _run()
+    run.outcomes.append(FrameOutcome(5, "dropped", reason="encoder busy while the link was full"))
+    header, rows = table_rows([run, _run()])
+    shown = [c for _, cols in STREAM_TABLES for c in cols if c not in ("codec", "link")]
+    assert sorted(shown) == sorted(header[2:])  # every column is in one of the tables
+    out = io.StringIO()
+    for table in stream_tables([run, _run()], 10.0):
+        Console(file=out, width=100, force_terminal=False).print(table)
+    text = out.getvalue()
+    assert max(len(line) for line in text.splitlines()) <= 100
+    assert "…" not in text
+    assert "5 (encoder" in text and "120 / 10 / 30 / 40" in text and "1/6" in text

@@ -54,9 +54,7 @@ def stream(
 ) -> None:
     """Stream a sequence from a scout process to a base process over 127.0.0.1 through a bandwidth cap:
     per codec KB/s, bytes, frames on time / late / dropped, latency and the base's map IoU; Fig. 6d."""
-    from rich.table import Table
-
-    from lwbench.link import LinkModel, StreamSettings, fig6d, parse_cap, ratio_line, run_study, table_rows
+    from lwbench.link import LinkModel, StreamSettings, fig6d, parse_cap, ratio_line, run_study
     from lwbench.run import frames_for, parse_assignments, parse_sweeps, resolve_dataset
     from lwbench.run.plan import expand_codec_configs
 
@@ -79,19 +77,14 @@ def stream(
         def on_start(config, link) -> None:  # one phase per stream: its heartbeat says it is alive
             for phase in (reading, *streams):
                 phase.finish()
-            streams.append(shown.phase(f"streaming {config.name} through {link.label}"))
+            streams.append(shown.phase(f"streaming {config.name} through {link.label}", frames))
 
         result = run_study(reg, spec, configs, links, settings, on_start=on_start,
-                           on_frame=lambda done, n: reading.update(done, total=n))
+                           on_frame=lambda done, n: reading.update(done, total=n),
+                           on_scan=lambda done, n: streams[-1].update(done, total=n))
     (out / "stream.json").write_text(result.to_json())
-    header, rows = table_rows(result.runs)
-    table = Table(title=f"Streams at {result.rate_hz:g} Hz (on time = decoded before the next scan is due)",
-                  title_justify="left")
-    for i, h in enumerate(header):
-        table.add_column(h, justify="left" if i < 2 else "right")
-    for r in rows:
-        table.add_row(*(escape(c) for c in r))
-    console.print(table)
+    for table in stream_tables(result.runs, result.rate_hz):
+        console.print(table)
     line = ratio_line(result.runs)
     if line:
         console.print(escape(line))
@@ -101,3 +94,24 @@ def stream(
         paths = fig6d(runs, out, name, f"{result.dataset}: scout -> base, {link.label}")
         console.print(f"wrote {escape(str(paths[0]))} (+ .svg)")
     console.print(f"wrote {escape(str(out / 'stream.json'))}")
+
+
+def stream_tables(runs, rate_hz: float) -> list:
+    """The stream table as rich tables (:data:`lwbench.link.STREAM_TABLES`): a value folds onto
+    a second line of its cell rather than being cut."""
+    from rich.table import Table
+
+    from lwbench.link import STREAM_TABLES, table_rows
+
+    header, rows = table_rows(runs)
+    tables = []
+    for what, columns in STREAM_TABLES:
+        table = Table(title=f"Streams at {rate_hz:g} Hz: {what} (on time = decoded before the next scan is due)",
+                      title_justify="left")
+        at = [header.index(c) for c in columns]
+        for i, c in enumerate(columns):
+            table.add_column(c, justify="left" if i < 2 else "right", overflow="fold")
+        for r in rows:
+            table.add_row(*(escape(r[i]) for i in at))
+        tables.append(table)
+    return tables

@@ -9,7 +9,7 @@ and draws the VSGP paper's Fig. 6d. Messages are framed by :mod:`.wire` (no pick
 
 from .session import FrameOutcome, StreamRun, StreamSettings, reference_map, run_stream
 from .shaper import KB, LinkModel, TokenBucket, parse_cap
-from .study import PAPER_FIG6D, StudyResult, fig6d, ratio_line, run_study, table_rows
+from .study import PAPER_FIG6D, STREAM_TABLES, StudyResult, fig6d, ratio_line, run_study, table_rows
 
 __all__ = [
     "FrameOutcome",
@@ -17,6 +17,7 @@ __all__ = [
     "LinkModel",
     "PAPER_FIG6D",
     "StreamRun",
+    "STREAM_TABLES",
     "StreamSettings",
     "StudyResult",
     "TokenBucket",

@@ -26,6 +26,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -243,22 +244,38 @@ def run_stream(
     rate_hz: float,
     reference: np.ndarray | None,
     workdir: Path | None = None,
+    on_scan: Callable[[int, int], None] | None = None,
 ) -> StreamRun:
     """Stream ``settings.frames`` frames of ``dataset`` ({name, params}) encoded by ``codec``
     ({name, params}: a resolved configuration) through ``link``; bounded in time, always
-    cleans up its processes. ``reference``: :func:`reference_map` of the same frames."""
+    cleans up its processes. ``reference``: :func:`reference_map` of the same frames.
+    ``on_scan(done, n)``: about once a second, how many scans the scout has dealt with (encoded,
+    skipped while its encoder was busy, or failed)."""
     own = workdir is None
     tmp = tempfile.TemporaryDirectory(prefix="lwbench-stream-") if own else None
     work = Path(tmp.name) if tmp is not None else Path(workdir)
     work.mkdir(parents=True, exist_ok=True)
     try:
-        return _run(dataset, codec, link, settings, rate_hz, reference, work)
+        return _run(dataset, codec, link, settings, rate_hz, reference, work, on_scan)
     finally:
         if tmp is not None:
             tmp.cleanup()
 
 
-def _run(dataset, codec, link, settings, rate_hz, reference, work: Path) -> StreamRun:
+def _scout_progress(work: Path) -> int:
+    """Scans the scout has dealt with so far, from its log (one event per scan: encoded, skipped
+    or failed; the log is line-buffered, so a line is whole or absent)."""
+    try:
+        text = (work / "scout.jsonl").read_text()
+    except OSError:
+        return 0
+    return sum(text.count(f'"ev": "{ev}"') for ev in _SCAN_EVENTS)
+
+
+_SCAN_EVENTS = ("encoded", "encoder_busy", "encode_failed")
+
+
+def _run(dataset, codec, link, settings, rate_hz, reference, work: Path, on_scan=None) -> StreamRun:
     length = settings.frames / rate_hz
     if settings.restart_at is not None and not 0 <= settings.restart_at < length:
         raise ParameterError(
@@ -297,8 +314,14 @@ def _run(dataset, codec, link, settings, rate_hz, reference, work: Path) -> Stre
             base_starts += 1
             base.expect("listening", settings.start_timeout_s)
         budget = max(0.0, t0 + length - time.monotonic()) + 60.0
-        if not scout.wait(budget):
-            raise LwbenchError(f"stream: the scout did not finish within {budget:.0f} s")
+        end = time.monotonic() + budget
+        while not scout.wait(min(1.0, end - time.monotonic())):
+            if time.monotonic() >= end:
+                raise LwbenchError(f"stream: the scout did not finish within {budget:.0f} s")
+            if on_scan is not None:
+                on_scan(_scout_progress(work), settings.frames)
+        if on_scan is not None:
+            on_scan(_scout_progress(work), settings.frames)
         if scout.proc.returncode != 0:
             raise LwbenchError(f"stream: the scout failed ({scout.proc.returncode}): {scout.tail()}")
         if not base.wait(10.0):

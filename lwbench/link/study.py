@@ -57,9 +57,11 @@ def run_study(
     on_run: Callable[[StreamRun], None] | None = None,
     on_start: Callable[[CodecConfig, LinkModel], None] | None = None,
     on_frame: Callable[[int, int], None] | None = None,
+    on_scan: Callable[[int, int], None] | None = None,
 ) -> StudyResult:
     """Every (link, codec) stream in turn; ``on_frame(done, n)`` while the frames are read first
-    (for the simulator: simulated, minutes for a long sequence), ``on_start`` before each stream."""
+    (for the simulator: simulated, minutes for a long sequence), ``on_start`` before each stream,
+    ``on_scan(done, n)`` while it runs (scans the scout has dealt with)."""
     ds = dataset.build(registry)
     if len(ds) < settings.frames:
         raise ParameterError(f"stream: {dataset.label} has {len(ds)} frames, asked for {settings.frames}")
@@ -77,7 +79,7 @@ def run_study(
                 on_start(config, link)
             run = run_stream({"name": dataset.name, "params": dataset.params},
                              {"name": config.name, "params": config.params}, link, settings,
-                             rate_hz=rate, reference=reference)
+                             rate_hz=rate, reference=reference, on_scan=on_scan)
             runs.append(run)
             if on_run is not None:
                 on_run(run)
@@ -101,6 +103,16 @@ def table_rows(runs: Sequence[StreamRun]) -> tuple[list[str], list[list[str]]]:
             "–" if s["map_iou"] is None else f"{s['map_iou']:.3f}",
         ])
     return header, rows
+
+
+STREAM_TABLES = (
+    ("what reached the base", ("codec", "link", "KB/s", "total bytes", "on time", "late", "dropped (why)", "lost",
+                               "rejected", "map IoU")),
+    ("where a scan's time went", ("codec", "link", "latency ms (median / p95)",
+                                  "median ms: encode / queue / transfer / decode", "link in a period")),
+)
+"""The table's columns in two tables, each narrow enough for a 100-column log (one table of all
+thirteen was 204 columns, and cut mid-value off a terminal)."""
 
 
 def dropped_text(dropped: int, why: dict[str, int]) -> str:
