@@ -322,7 +322,10 @@ def _register(
         )
         pose = res.transformation
     failed = res.fitness < p["min_fitness"] or len(res.correspondence_set) < p["min_correspondences"]
-    return np.asarray(res.transformation), bool(failed)
+    # A copy: Open3D's ``res.transformation`` is a view whose base is the whole RegistrationResult,
+    # correspondence set included (~0.4 MB on a town scan). Kept as a tracked pose, each one held
+    # its result alive: the tracking worker's memory grew ~0.45 MB a scan (docs/design.md).
+    return np.array(res.transformation, dtype=np.float64), bool(failed)
 
 
 def _widest_gate(p: dict[str, Any]) -> float:
