@@ -20,7 +20,7 @@ def _ranges(frame: Frame, decoded: np.ndarray) -> dict[str, float | None]:
 
 
 def test_the_metric_version_says_its_values_changed():
-    assert RangeMetric.version == "4"
+    assert RangeMetric.version == "5"
 
 
 def test_a_selection_codecs_duplicate_copies_pair_with_nothing_else():
