@@ -210,12 +210,14 @@ def _table(entries: list[LeaderboardEntry], info: Mapping[str, MetricId]) -> str
     columns += [("codec", "text", "configuration"), ("frames", "num", ""), ("fail", "num", "failed rows")]
     columns += [(header_name(c, info), "num", f"{c}: {getattr(info.get(c), 'better', '')} is better") for c in cols]
     columns.append(("flags", "text", "quality flags (grey rows rank last) and notes on the data"))
-    head = "".join(f'<th data-type="{t}" title="{html.escape(d)}">{html.escape(n)}</th>' for n, t, d in columns)
+    # The unit under the id, as the terminal's board puts it: a header is as wide as its id.
+    head = "".join(f'<th data-type="{t}" title="{html.escape(d)}">{html.escape(n).replace(" [", "<br>[")}</th>'
+                   for n, t, d in columns)
     groups = {ds: i for i, ds in enumerate(dict.fromkeys(e.dataset for e in entries))}
     rows = []
     for e in entries:
         cells = [*([html.escape(e.dataset)] if many else []), html.escape(e.label)]
-        tds = "".join(f"<td>{c}</td>" for c in cells)
+        tds = "".join(f'<td class="text">{c}</td>' for c in cells)
         tds += f'<td data-v="{e.frames}">{e.frames}</td><td data-v="{e.failures}">{e.failures}</td>'
         for c in cols:
             v = e.shown(c)
@@ -230,8 +232,11 @@ def _table(entries: list[LeaderboardEntry], info: Mapping[str, MetricId]) -> str
                 tds += f'<td data-v="{v!r}"{tip}>{format_value(v)}</td>'
         last = int(e.ranked_last)
         rows.append(f'<tr class="{"flagged" if last else ""}" data-group="{groups[e.dataset]}" data-last="{last}">'
-                    f'{tds}<td>{html.escape(e.flags_text)}</td></tr>')
-    return f'<table id="board"><thead><tr>{head}</tr></thead><tbody>{"".join(rows)}</tbody></table>'
+                    f'{tds}<td class="text">{html.escape(e.flags_text)}</td></tr>')
+    # In a box that scrolls sideways when it must: the page itself never does (issue 33: a sweep's
+    # labels and flags, each on one line, made the board wider than a 1,400 px window).
+    return (f'<div class="board"><table id="board"><thead><tr>{head}</tr></thead>'
+            f'<tbody>{"".join(rows)}</tbody></table></div>')
 
 
 # The order a click on column ``col`` gives -- the board's own (lwbench.leaderboard's sort key):
@@ -281,6 +286,8 @@ _STYLE = """
 body { font-family: system-ui, sans-serif; margin: 1.5rem; color: #222; }
 table { border-collapse: collapse; font-size: 0.82rem; }
 th, td { border: 1px solid #ccc; padding: 0.2rem 0.45rem; text-align: right; white-space: nowrap; }
+div.board { max-width: 100%; overflow-x: auto; }
+td.text { white-space: normal; min-width: 7rem; max-width: 22rem; overflow-wrap: anywhere; text-align: left; }
 th { background: #f3f3f3; cursor: pointer; user-select: none; }
 th[data-sorted="asc"]::after { content: " ▲"; } th[data-sorted="desc"]::after { content: " ▼"; }
 td:first-child, th:first-child { text-align: left; }

@@ -71,3 +71,44 @@ def test_the_page_in_a_headless_browser(report, tmp_path):
     assert ascending[-2].startswith("random(ratio=0.1") and descending[-2].startswith("random(ratio=0.5")
     assert descending[:4] == list(reversed(ascending[:4]))
     assert (tmp_path / "report.png").stat().st_size > 10_000
+
+
+def _wide_board_page(tmp_path: Path) -> Path:
+    """A board as wide as a real sweep makes it: two datasets, VSGP labels with four parameters
+    off their defaults, every default column filled, and long flags (issue 33: such a board ran
+    past a 1,400 px window)."""
+    from lwbench.leaderboard import LeaderboardEntry
+    from lwbench.registry import get_registry
+    from lwbench.report import _STYLE, _table
+
+    info = get_registry().metric_info()
+    cols = [i for i, m in info.items() if m.default or getattr(m, "role", "") == "rate"]
+    entries = []
+    for ds in ("sim:tunnel(frames=40, seed=7, sensor=vlp16)", "kitti:/data/drives/2011_09_26_drive_0001_sync"):
+        for m in (100, 300, 500):
+            stats = {c: {"mean": 1234.5678 + m, "std": 1.0} for c in cols}
+            entries.append(LeaderboardEntry(
+                ds, "vsgp", {"num_inducing": m, "residual": 0.25, "upsample": 2.0, "variance_threshold": 0.125},
+                frames=40, stats=stats, flags=["low_coverage", "sensor_guessed"]))
+    page = tmp_path / "wide.html"
+    page.write_text(f"<!doctype html><html><head><meta charset='utf-8'><style>{_STYLE}</style></head>"
+                    f"<body>{_table(entries, info)}</body></html>")
+    return page
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="Chromium is not installed here (Debian: apt-get install chromium)")
+def test_a_wide_board_never_widens_the_page_past_a_1400px_window(tmp_path):
+    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright (the dev extra) is not installed")
+    page_file = _wide_board_page(tmp_path)
+    with sync_api.sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox", "--disable-gpu"])
+        page = browser.new_page(viewport={"width": 1400, "height": 1000})
+        page.goto(page_file.as_uri())
+        page_width = page.evaluate("document.documentElement.scrollWidth")
+        board = page.evaluate("(() => { const b = document.querySelector('div.board'); "
+                              "return [b.scrollWidth, b.clientWidth]; })()")
+        cells = page.evaluate("Array.from(document.querySelectorAll('#board td.text')).map(c => c.offsetWidth)")
+        browser.close()
+    assert page_width <= 1400, f"the page is {page_width} px wide in a 1,400 px window"
+    assert board[0] <= board[1], f"the board needs {board[0]} px, its box is {board[1]} px: it scrolls"
+    assert cells and max(cells) <= 22 * 16 + 20  # labels and flags wrap at 22rem (+ padding)
