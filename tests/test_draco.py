@@ -228,3 +228,23 @@ def test_near_duplicates_are_kept_even_in_one_quantization_cell() -> None:
     assert len(decoded) == len(pts) == Payload.from_bytes(data).meta["n"]
     assert len(_rows(decoded)) < len(decoded)  # some really did land in one cell
     assert_on_grid(pts, decoded, step)
+
+
+def test_a_count_beyond_what_the_codec_writes_is_refused_before_dracopy_allocates() -> None:
+    """Issue 33, item 14: DracoPy allocates for the count in Draco's header before it reads the
+    body (a 65 kB body declaring 2^24 points peaked at 384 MB). Counts above MAX_DISTINCT are
+    refused from the header alone; the encoder refuses to write them."""
+    from lwbench_plugins.draco import _DRACO_HEAD, MAX_DISTINCT
+
+    frame = scan(2_000)
+    data = DracoCodec().encode(frame)
+    body = bytearray(Payload.from_bytes(data).body)
+    fields = list(_DRACO_HEAD.unpack_from(body))
+    fields[-1] = 1 << 24
+    _DRACO_HEAD.pack_into(body, 0, *fields)
+    with pytest.raises(PayloadError, match="distinct points, more than"):
+        DracoCodec().decode(_rewrap(data, bytes(body), n=1 << 24))
+    x = np.arange(MAX_DISTINCT + 1, dtype=np.float32) * np.float32(1e-3)  # all distinct in float32
+    big = Frame(np.repeat(x[:, None], 3, axis=1), get_sensor("hdl64e"))
+    with pytest.raises(ValueError, match="at most"):
+        DracoCodec().encode(big)

@@ -33,7 +33,7 @@ import numpy as np
 import lwbench
 from lwbench import Frame, Param, PayloadError, RepresentationCodec, check_count, checked_cloud, hookimpl
 
-__all__ = ["DracoCodec", "distinct_points", "quantization_step"]
+__all__ = ["MAX_DISTINCT", "DracoCodec", "distinct_points", "quantization_step"]
 
 
 def quantization_step(points: np.ndarray, bits: int, quantization_range: float | None = None) -> float:
@@ -108,6 +108,9 @@ class DracoCodec(RepresentationCodec):
             pts = pts[distinct]
         if len(pts) == 0:
             return self.make_payload(frame, meta, b"")
+        if len(pts) > MAX_DISTINCT:
+            raise ValueError(f"draco: {len(pts):,} distinct points; a Draco payload holds at most {MAX_DISTINCT:,} "
+                             "(what DracoPy allocates for a declared count before it reads the body)")
         kwargs: dict[str, Any] = {}
         if qrange is not None:
             # Draco needs the cube's origin with an explicit range; centring the cube on the
@@ -146,6 +149,9 @@ class DracoCodec(RepresentationCodec):
             if payload.body:
                 raise PayloadError("draco payload: body present for an empty scan")
             return np.zeros((0, 3), dtype=np.float32)
+        if distinct > MAX_DISTINCT:
+            raise PayloadError(f"draco payload: {distinct:,} distinct points, more than the {MAX_DISTINCT:,} "
+                               "this codec writes")
         _check_draco_header(payload.body, distinct)
         try:
             cloud = DracoPy.decode(payload.body)
@@ -163,6 +169,15 @@ class DracoCodec(RepresentationCodec):
             pts = np.repeat(pts, _copies_attribute(cloud, distinct, n) + 1, axis=0)
         return checked_cloud(pts, self.name)
 
+
+# Distinct points a payload may hold. DracoPy allocates for the count in Draco's own header
+# before it reads the body, ~24 bytes a point: a 65 kB body declaring 2^24 points peaked at
+# 384 MB before DracoPy refused it, 2^22 at 96 MB. The body cannot bound the count: Draco's k-d
+# tree codes a million points in one quantization cell in 203 bytes (measured, DracoPy 2.2), so a
+# legitimately tiny body can hold many points. 4 Mi distinct points is over ten times the
+# densest spinning scan (a 128-beam sensor's dual returns, ~700 k); exact copies beyond it are
+# counts (the copy attribute) and still reach MAX_POINTS.
+MAX_DISTINCT = 1 << 22
 
 _COPIES_ID = 0  # unique id of the generic attribute holding each distinct point's extra copies
 
