@@ -50,6 +50,7 @@ def _digests(root: Path) -> dict[str, str]:
     return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in files}
 
 
+@pytest.mark.heavy
 @pytest.mark.parametrize("storage", ["mcap", "sqlite3", "ros1"])
 def test_a_written_bag_reads_back_exactly(tmp_path, storage):
     frames = _frames()
@@ -86,6 +87,7 @@ def test_the_loader_is_found_by_path_and_a_results_store_is_never_taken_for_a_ba
     assert res.exit_code == 2 and "not an lwbench results store" in res.output
 
 
+@pytest.mark.heavy
 def test_a_bag_and_the_same_scans_in_kitti_layout_give_the_same_leaderboard(tmp_path):
     kitti = write_kitti_sequence(_frames(3, ring=False), tmp_path / "kitti")
     scans = list(KittiDataset(path=str(kitti)))  # exactly what the KITTI run reads
@@ -270,6 +272,7 @@ def test_cloud_fields_are_found_by_name_in_a_padded_organized_ouster_layout():
     assert scan.points.tolist() == [[1.5, 2.5, 3.5]]
 
 
+@pytest.mark.heavy
 @pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
 def test_a_mangled_bag_raises_only_lwbench_errors(tmp_path, storage):
     """Seeded flips and cuts in the storage file: refused with an lwbench error, or read -- never

@@ -37,6 +37,7 @@ def test_a_shuffled_zero_intensity_kitti_scan_reads_as_its_points(tmp_path):
     assert scan.intensity is not None and not scan.intensity.any()
 
 
+@pytest.mark.heavy
 def test_the_real_kitti_frame_written_with_zero_intensity_and_shuffled_reads_right(real_data, tmp_path):
     pts = read_kitti_bin(kitti_frame0()).points
     assert len(pts) == 124_668
@@ -62,6 +63,7 @@ def _scans() -> dict[str, tuple[np.ndarray, np.ndarray | None]]:
     }
 
 
+@pytest.mark.heavy
 @pytest.mark.parametrize("name", list(_scans()))
 def test_every_bin_reading_is_right_or_an_error(tmp_path, name):
     pts, inten = _scans()[name]

@@ -38,6 +38,7 @@ def store(tmp_path_factory, kitti_folder):
     return path
 
 
+@pytest.mark.heavy
 def test_run_prints_every_core_metric_column(store):
     res = invoke("leaderboard", "--store", str(store), "--format", "md")
     assert res.exit_code == 0
@@ -148,6 +149,7 @@ def test_the_run_prints_what_it_asked_for_not_the_whole_store(store, kitti_folde
     assert {d["codec"]: d["frames"] for d in board}["raw"] == 3
 
 
+@pytest.mark.heavy
 def test_labels_spell_out_swept_defaults(tmp_path, kitti_folder):
     store = tmp_path / "sweep.sqlite"
     res = invoke("run", "--dataset", str(kitti_folder), "--codec", "random", "--param", "random.ratio=0.1,0.2",
@@ -185,6 +187,7 @@ def test_version():
     assert res.exit_code == 0 and res.stdout.startswith("lwbench ")
 
 
+@pytest.mark.heavy
 def test_a_missing_open3d_is_one_line_and_exit_2(tmp_path, kitti_folder):
     """With Open3D unimportable, a command that needs it fails with what to install, no traceback."""
     import os
@@ -206,6 +209,7 @@ def test_a_missing_open3d_is_one_line_and_exit_2(tmp_path, kitti_folder):
     assert "failed:" not in res.stdout + res.stderr  # an environment problem is not a codec's failure
 
 
+@pytest.mark.heavy
 def test_plugin_commands_load_lazily_and_their_errors_are_one_line(tmp_path):
     """Importing the CLI loads no plugin; a plugin command that raises an lwbench error gets the
     same one line and exit status 2 as a built-in one, and a broken hook leaves the others working."""

@@ -9,6 +9,7 @@ import json
 import re
 import time
 
+import pytest
 from typer.testing import CliRunner
 
 from lwbench.cli import app
@@ -84,6 +85,7 @@ def _phases(stderr: str) -> list[str]:
     return [line.split(" done:")[0].removeprefix("lwbench: ") for line in stderr.splitlines() if " done: " in line]
 
 
+@pytest.mark.heavy
 def test_run_reports_the_frames_and_the_sequence_metrics_off_a_terminal(tmp_path):
     # The simulator: it has poses, so the sequence metrics run after the frames.
     res = runner.invoke(app, ["run", "--frames", "3", "--codec", "raw", "--store", str(tmp_path / "r.sqlite")],
@@ -110,6 +112,7 @@ def test_simulate_and_encode_report_their_phase(tmp_path):
     assert "lwbench: encoding with raw done: 2/2 in " in res.stderr
 
 
+@pytest.mark.heavy
 def test_stream_reports_reading_and_each_stream(tmp_path):
     res = runner.invoke(app, ["stream", "--codec", "raw", "--frames", "2", "--out", str(tmp_path / "s")],
                         env={"LWBENCH_PROGRESS_S": "0"}, catch_exceptions=False)
@@ -121,6 +124,7 @@ def test_stream_reports_reading_and_each_stream(tmp_path):
     assert run["frames"] == 2
 
 
+@pytest.mark.heavy
 def test_report_config_opens_one_frames_phase_per_run_not_per_row(tmp_path):
     """Issue 33: `lwbench report --config` built a new progress phase on every stored row (20,272
     lines on the RD study). Two runs (two seeds) of three frames: two frames phases."""

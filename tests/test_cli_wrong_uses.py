@@ -76,6 +76,7 @@ def test_the_out_folder_is_created_and_kept(tmp_path, kitti_folder):
     assert sorted(p.suffix for p in out.iterdir()) == [".json", ".lwb"]  # no probe file left behind
 
 
+@pytest.mark.heavy
 def test_conflicting_run_options_are_refused(store):
     line = wrong("run", "--in-process", "--workers", "2", "--codec", "raw", "--store", str(store))
     assert "--in-process" in line and "--workers 2" in line
@@ -138,6 +139,7 @@ def test_lwbench_alone_prints_the_help_once():
     assert not any(line.startswith("error:") for line in res.output.splitlines())
 
 
+@pytest.mark.heavy
 @pytest.mark.parametrize("inside", [False, True], ids=["folder", "velodyne"])
 def test_sequence_metrics_skipped_for_want_of_poses_say_so(tmp_path, kitti_folder, inside):
     """Issue 33: a folder without poses (or its velodyne/ folder) ran without its sequence metrics

@@ -38,11 +38,13 @@ CODECS = [(cls, FAST_PARAMS.get(name)) for name, cls in sorted(REGISTRY.codecs.i
 METRICS = sorted({**REGISTRY.frame_metrics, **REGISTRY.sequence_metrics}.items())
 
 
+@pytest.mark.heavy
 @parametrize_with_checks(CODECS)
 def test_codec_contract(plugin, check):
     check(plugin)
 
 
+@pytest.mark.heavy
 @pytest.mark.parametrize("metric", [m for _, m in METRICS], ids=[n for n, _ in METRICS])
 def test_metric_contract(metric):
     check_metric(metric)

@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 
 
+@pytest.mark.heavy
 def test_open3d_links_against_the_wheels_libusb_when_asked():
     libusb_package = pytest.importorskip("libusb_package")
     wheel_copy = Path(libusb_package.get_library_path()).resolve()

@@ -98,6 +98,7 @@ def _rows(store: Path) -> dict[str, tuple]:
     pytest.param("test-segfault", "SIGSEGV", 2, marks=pytest.mark.slow),
     pytest.param("test-exit", "exited with status 3", 1, marks=pytest.mark.slow),
 ])
+@pytest.mark.heavy
 def test_a_plugin_that_hangs_or_dies_costs_one_failure_row(scans, tmp_path, codec, why, workers):
     tag = uuid.uuid4().hex
     store = tmp_path / "r.sqlite"
@@ -116,6 +117,7 @@ def test_a_plugin_that_hangs_or_dies_costs_one_failure_row(scans, tmp_path, code
     assert error.startswith("WorkerError") and why in error
 
 
+@pytest.mark.heavy
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="RLIMIT_DATA as on Linux")
 def test_a_leaking_plugin_meets_the_memory_ceiling(scans, tmp_path):
     tag = uuid.uuid4().hex
@@ -131,6 +133,7 @@ def test_a_leaking_plugin_meets_the_memory_ceiling(scans, tmp_path):
     assert len([r for r in rows if r[2] == "ok"]) == 5  # the recycled worker went on
 
 
+@pytest.mark.heavy
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="/proc and signals as on Linux")
 def test_sigkill_at_random_moments_then_resume_gives_the_uninterrupted_rows(scans, tmp_path):
     args = ["--dataset", str(scans), "--codec", "raw", "--codec", "rangeimage", "--codec", "random",
@@ -160,6 +163,7 @@ def test_sigkill_at_random_moments_then_resume_gives_the_uninterrupted_rows(scan
     assert _rows(store) == reference
 
 
+@pytest.mark.heavy
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="/proc as on Linux")
 def test_two_runs_writing_one_store_at_once(scans, tmp_path):
     tag = uuid.uuid4().hex
@@ -177,6 +181,7 @@ def test_two_runs_writing_one_store_at_once(scans, tmp_path):
     assert _rows(shared) == _rows(apart)
 
 
+@pytest.mark.heavy
 def test_isolated_and_in_process_runs_store_the_same_rows(scans, tmp_path):
     tag = uuid.uuid4().hex
     args = ["--dataset", str(scans), "--codec", "raw", "--codec", "voxel", "--codec", "rangeimage", "--frames", "3"]

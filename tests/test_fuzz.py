@@ -43,6 +43,7 @@ class HypothesisChooser:
         return self.data.draw(st.binary(min_size=n, max_size=n))
 
 
+@pytest.mark.heavy
 @pytest.mark.parametrize("codec", sorted(REGISTRY.codecs))
 def test_only_payload_errors_escape_a_decoder(codec):
     cls = REGISTRY.codec(codec)
@@ -87,6 +88,7 @@ def test_mutations_are_sealed_and_reproducible():
             assert "checksum" not in str(exc)
 
 
+@pytest.mark.heavy
 def test_the_harness_counts_hangs_crashes_and_bombs(tmp_path):
     """The harness itself: a decoder that hangs, dies or allocates without bound is counted as
     such (timeout, crash, memory), never as a PayloadError, and the server carries on."""

@@ -62,6 +62,7 @@ def _keep_all(name: str) -> dict:
 VARIANTS = [(c, _keep_all(c)) for c in CODECS] + [("gmm", {"reproject": True})]
 
 
+@pytest.mark.heavy
 @pytest.mark.parametrize(("codec", "params"), VARIANTS, ids=[f"{c}{p or ''}" for c, p in VARIANTS])
 @pytest.mark.parametrize("where", ["20 km", "2.5x max range"])
 def test_a_scan_beyond_the_decoders_bound_is_refused_at_encode_or_decodes(codec, params, where):
@@ -107,6 +108,7 @@ def _real_folders() -> list[str]:
     return sorted(p.name for p in root.iterdir() if p.is_dir() and not p.name.startswith("."))
 
 
+@pytest.mark.heavy
 @pytest.mark.parametrize("folder", _real_folders())
 def test_every_codec_decodes_its_own_payload_of_each_real_first_frame(real_data, folder):
     frame = open_dataset(real_data / folder).frame(0)

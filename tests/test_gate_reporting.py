@@ -21,6 +21,7 @@ def project(pytester, kitti_folder):
 # Subprocesses: native extensions (Open3D, SciPy) cannot be imported twice in one process.
 
 
+@pytest.mark.heavy
 def test_a_failed_gate_shows_its_message_and_not_lwbench_source(project):
     pytester, folder = project
     pytester.makepyfile(test_gate=textwrap.dedent(f'''
@@ -39,6 +40,7 @@ def test_a_failed_gate_shows_its_message_and_not_lwbench_source(project):
     assert len(section.splitlines()) <= 8, section
 
 
+@pytest.mark.heavy
 def test_a_gate_failure_can_still_be_expected(project):
     pytester, folder = project
     pytester.makepyfile(test_expect=textwrap.dedent(f'''
@@ -52,6 +54,7 @@ def test_a_gate_failure_can_still_be_expected(project):
     pytester.runpytest_subprocess("-q").assert_outcomes(passed=1)
 
 
+@pytest.mark.heavy
 def test_the_readme_benchmark_recipe_runs_the_benchmark(project):
     pytester, folder = project
     pytester.makepyfile(test_speed=textwrap.dedent(f'''

@@ -44,6 +44,7 @@ def project(pytester, kitti_folder):
 # native extensions (Open3D, SciPy's k-d tree) cannot be imported twice in one process.
 
 
+@pytest.mark.heavy
 def test_a_gate_passes_and_fails_as_its_thresholds_say(project):
     pytester, folder = project
     pytester.makepyfile(test_toy=textwrap.dedent(f'''
@@ -67,6 +68,7 @@ def test_a_gate_passes_and_fails_as_its_thresholds_say(project):
     print(out[out.index("lwbench gate failed"):][:600])  # shown in the closing note
 
 
+@pytest.mark.heavy
 def test_a_gate_reuses_a_store_and_refuses_unknown_metric_ids(project, tmp_path):
     pytester, folder = project
     store = tmp_path / "ci.sqlite"
@@ -93,6 +95,7 @@ def test_a_gate_reuses_a_store_and_refuses_unknown_metric_ids(project, tmp_path)
         assert s.count() == 3 and sorted(r.created for r in s.rows()) == created  # cache hits, no re-encode
 
 
+@pytest.mark.heavy
 def test_a_speed_gate_records_quality_in_the_benchmark_json(project, tmp_path):
     pytester, folder = project
     pytester.makepyfile(test_speed=textwrap.dedent(f'''

@@ -78,6 +78,7 @@ def test_a_short_range_pandarqt_snaps_to_its_non_uniform_table():
     assert d.sensor.elevations_deg[0] == pytest.approx(-52.121, abs=0.01)
 
 
+@pytest.mark.heavy
 def test_a_rotating_2d_laser_gets_a_bounded_grid_not_hundreds_of_beams():
     pts = rotating_2d_laser_scan()
     d = _guess(pts)
@@ -93,6 +94,7 @@ def _thinned_2d_laser(k: int) -> np.ndarray:
                                   turn_start_deg=0.7 * k, keep=0.25)
 
 
+@pytest.mark.heavy
 def test_a_thinned_rotating_2d_laser_gets_the_uniform_grid_not_its_histogram_bumps():
     # Before: 51, 92 and 98 "beams" on three consecutive scans (RMS spread 0.285-0.29 spacings:
     # uniform elevations give 0.289), the second refused as another sensor.
@@ -101,6 +103,7 @@ def test_a_thinned_rotating_2d_laser_gets_the_uniform_grid_not_its_histogram_bum
         assert d.method == METHOD_UNIFORM and "do not hold the returns" in d.rule, d.rule
 
 
+@pytest.mark.heavy
 def test_three_consecutive_2d_laser_scans_load_as_one_sensor(tmp_path):
     from lwbench import open_dataset
 
@@ -140,6 +143,7 @@ def test_the_dataset_says_its_sensor_was_guessed(tmp_path):
 
 
 # ------------------------------------------------------------------------------ real samples
+@pytest.mark.heavy
 def test_real_scans_shuffled_and_downsampled_are_snapped_or_flagged(real_data):
     """Each real sample without its order (and voxel-downsampled): either a preset with the
     sensor's beam count, or a flagged guess with at most a tenth more beams than the sensor has

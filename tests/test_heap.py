@@ -48,6 +48,7 @@ def _fragment_the_heap(rng: np.random.Generator) -> list[np.ndarray]:
     return blocks[::7]
 
 
+@pytest.mark.heavy
 def test_peak_mb_is_the_working_set_even_when_earlier_frames_freed_as_much():
     # Issue 33: raw read 0 MiB in a run -- its payload and decoded copy fitted in heap memory the
     # work before had freed (0.00-0.12 MiB here without the trim). The heap's free pages go back

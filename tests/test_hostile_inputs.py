@@ -46,6 +46,7 @@ def _hostile_frames() -> dict[str, Frame]:
 FRAMES = _hostile_frames()
 
 
+@pytest.mark.heavy
 @pytest.mark.parametrize("codec", CODECS)
 def test_hostile_scans_give_a_clear_error_or_a_finite_row(codec):
     ev = Evaluator(REGISTRY)

@@ -67,6 +67,7 @@ def _run_and_boards(dataset: Path, store: Path) -> dict[str, str]:
     return out
 
 
+@pytest.mark.heavy
 def test_a_voxel_downsampled_shuffled_hdl64e_folder_is_flagged_sensor_guessed_on_every_board(tmp_path):
     root = _keyframe_folder(tmp_path / "keyframes", [street_scan(get_sensor("hdl64e"), seed=0, laser_height_m=0.2)])
     with pytest.warns(DataWarning, match="guessed"):
@@ -89,6 +90,7 @@ def test_a_voxel_downsampled_shuffled_hdl64e_folder_is_flagged_sensor_guessed_on
     assert rows[-1]["flags"] == ["low_coverage", "sensor_guessed"]
 
 
+@pytest.mark.heavy
 def test_the_same_folder_with_its_sensor_named_carries_no_flag(tmp_path):
     root = _keyframe_folder(tmp_path / "keyframes", [street_scan(get_sensor("hdl64e"), seed=0)])
     store = tmp_path / "named.sqlite"
@@ -102,6 +104,7 @@ def test_the_same_folder_with_its_sensor_named_carries_no_flag(tmp_path):
     assert rows[0]["flags"] == [] and "sensor guessed" not in res.stdout
 
 
+@pytest.mark.heavy
 def test_a_real_voxel_downsampled_hdl64e_keyframe_carries_sensor_guessed_in_the_json_board(real_data, tmp_path):
     """The issue's done-when on the real KITTI frame 0: voxel-downsampled, shuffled, no ring."""
     pts = read_kitti_bin(real_data / "kitti00_frames0-1" / "000000.bin").points

@@ -77,6 +77,7 @@ def _header_ids(text: str) -> list[str]:
     return next(line for line in text.splitlines() if line.split()[:1] == ["codec"]).split()
 
 
+@pytest.mark.heavy
 def test_the_main_jobs_default_board_fits_120_columns_with_the_task_metrics(main_job_store, monkeypatch):
     text = _board_at(main_job_store, 120, monkeypatch)
     assert max(len(line) for line in text.splitlines()) <= 120
@@ -107,6 +108,7 @@ def test_hidden_columns_are_a_columns_option_away(main_job_store, monkeypatch):
     assert _header_ids(text)[2:6] == ["ratio", "false_returns", "select", "d1_psnr"]
 
 
+@pytest.mark.heavy
 def test_a_narrower_terminal_leaves_out_runtimes_first_and_the_task_metrics_last(main_job_store, monkeypatch):
     text = _board_at(main_job_store, 100, monkeypatch)
     assert max(len(line) for line in text.splitlines()) <= 100

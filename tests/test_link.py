@@ -189,6 +189,7 @@ def _frames(folder: Path, n: int) -> list[Frame]:
     return [ds[i] for i in range(n)]
 
 
+@pytest.mark.heavy
 def test_an_uncapped_raw_stream_delivers_every_frame_and_the_raw_map(moving_room, tmp_path):
     frames = _frames(moving_room, 8)
     run = run_stream({"name": "kitti", "params": {"path": str(moving_room)}}, {"name": "raw", "params": {}},
@@ -206,6 +207,7 @@ def test_an_uncapped_raw_stream_delivers_every_frame_and_the_raw_map(moving_room
     assert all(set(o.parts) == {"encode", "queue", "transfer", "decode"} for o in run.outcomes)
 
 
+@pytest.mark.heavy
 def test_a_restarted_base_resumes_and_corrupted_payloads_never_reach_the_map(moving_room, tmp_path):
     from lwbench import OccupancyMap
 
@@ -239,6 +241,7 @@ def test_a_restarted_base_resumes_and_corrupted_payloads_never_reach_the_map(mov
     assert s["on_time"] + s["late"] == len(ok) and s["on_time"] + s["late"] + s["dropped"] + s["rejected"] == n
 
 
+@pytest.mark.heavy
 def test_stream_command_prints_the_table_and_writes_fig6d(moving_room, tmp_path):
     from typer.testing import CliRunner
 

@@ -333,6 +333,7 @@ def test_a_ring_field_with_placeholders_gives_the_real_table_and_step():
     assert s.min_range == 0.05  # above the placeholders (5e-5 m): no returns; not at the nearest return
 
 
+@pytest.mark.heavy
 def test_a_long_folder_opens_and_gives_its_poses_without_reading_its_scans(tmp_path, monkeypatch):
     """A 5,000-scan drive is opened by listing it: no scan is read until a frame is asked for,
     and the sequence metrics' poses come from the poses file (issue 31)."""
@@ -376,6 +377,7 @@ def _nuscenes_marked(tmp_path, marker) -> list:
     return frames
 
 
+@pytest.mark.heavy
 def test_no_return_copies_far_from_the_origin_are_left_out_of_the_derived_sensor(tmp_path):
     """Older nuScenes files write each ray without a return as one point 0.19 m out: before, nine
     upper rings were derived at its -3.68 deg and the minimum range came out 0.1 m."""

@@ -37,6 +37,7 @@ def test_registration_and_ids():
     assert DESIGN_IDS <= set(LocalizationMetric.ids)
 
 
+@pytest.mark.heavy
 def test_map_tracking_recovers_the_trajectory_from_original_scans(street):
     out = LocalizationMetric().compute(_seq(street, _originals(street)))
     assert set(out) == set(LocalizationMetric.ids)
@@ -50,6 +51,7 @@ def test_map_tracking_recovers_the_trajectory_from_original_scans(street):
     assert 0 < out["map_share"] < 1
 
 
+@pytest.mark.heavy
 def test_tracking_starts_from_the_previous_estimate_and_follows_a_wrong_start(street):
     """A start 0.4 m off must be pulled back onto the map within one frame (the map is at GT)."""
     scans = _originals(street)
@@ -61,6 +63,7 @@ def test_tracking_starts_from_the_previous_estimate_and_follows_a_wrong_start(st
     assert err.max() < 0.05
 
 
+@pytest.mark.heavy
 def test_inconsistent_decoded_scans_localize_worse(street):
     """Scans each displaced by a different 0.3 m / 1 deg error make a blurred map and a worse track."""
     rng = np.random.default_rng(3)
@@ -74,6 +77,7 @@ def test_inconsistent_decoded_scans_localize_worse(street):
     assert worse["ate_rmse"] > 0.05
 
 
+@pytest.mark.heavy
 def test_empty_decoded_scans_count_as_failures_not_nan(street):
     decoded = _originals(street)
     decoded[4] = np.zeros((0, 3), np.float32)
@@ -86,6 +90,7 @@ def test_empty_decoded_scans_count_as_failures_not_nan(street):
     assert out["ate_rmse"] > 1.0  # stuck at the first pose while the sensor drove 9 m
 
 
+@pytest.mark.heavy
 def test_odometry_follows_the_trajectory_and_drifts_more_than_map_tracking(street):
     seq = _seq(street, _originals(street))
     odo = OdometryMetric().compute(seq)
@@ -136,6 +141,7 @@ def test_reach_columns_hold_everything_within_each_points_radius():
     assert kept.sum() < 1.6 * needed.sum()  # whole columns, not the whole map
 
 
+@pytest.mark.heavy
 def test_the_cropped_target_tracks_exactly_as_the_whole_ball(street, monkeypatch):
     """The crop only drops map voxels no correspondence can reach: poses equal the ball's; and a
     registration that moves points beyond half their room is redone on the ball."""

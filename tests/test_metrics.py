@@ -67,6 +67,7 @@ def _grid_decode(frame: Frame) -> np.ndarray:
     return frame.sensor.unproject(frame.sensor.project(frame.points).ranges)
 
 
+@pytest.mark.heavy
 @pytest.mark.parametrize("decode", [_lossy, _grid_decode], ids=["lossy", "grid"])
 @pytest.mark.parametrize("fraction", [0.1, 0.25, 0.5, 0.77, 13.5])
 def test_rotating_both_clouds_together_changes_nothing(decode, fraction):
@@ -80,6 +81,7 @@ def test_rotating_both_clouds_together_changes_nothing(decode, fraction):
         assert moved[key] == pytest.approx(base[key], rel=0.01, abs=1e-4), key
 
 
+@pytest.mark.heavy
 @pytest.mark.parametrize("fraction", [0.0, 0.25, 0.5, 0.75])
 def test_a_grid_codec_is_scored_the_same_wherever_the_scan_sits_on_its_grid(fraction):
     # Rotate the *input* by a fraction of a cell: a grid codec's output moves relative to the
@@ -185,6 +187,7 @@ def test_a_faithful_codec_is_not_charged_for_returns_that_share_a_window():
     assert m["coverage"] == 1.0 and m["range_rmsd"] < 0.001  # the noise, not the 2-8 m between returns
 
 
+@pytest.mark.heavy
 def test_one_decoded_return_where_the_scan_had_two_covers_one():
     frame = _two_returns_per_window(get_sensor("vlp16"))
     near_only = frame.points[: len(frame) // 2]

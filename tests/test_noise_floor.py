@@ -135,6 +135,7 @@ def _entries(store):
         return build_leaderboard(results, info=get_registry().metric_info())
 
 
+@pytest.mark.heavy
 def test_rows_carry_the_floor_inputs_and_rd_prints_the_floor(store):
     entries = _entries(store)
     coarse = next(e for e in entries if e.label == "rangeimage(step=0.05)")
@@ -151,6 +152,7 @@ def test_rows_carry_the_floor_inputs_and_rd_prints_the_floor(store):
     assert floor_lines(entries)[0].startswith("floor on sim")
 
 
+@pytest.mark.heavy
 def test_the_report_draws_the_floor_on_every_rd_plot(store, tmp_path, monkeypatch):
     import lwbench.report as report
 

@@ -103,6 +103,7 @@ def test_test_sensor_is_street_sized():
     assert TEST32.max_range >= 50
 
 
+@pytest.mark.heavy
 def test_the_live_map_equals_the_batch_map_in_any_order(street):
     """What lwbench stream's base keeps: one insert per received scan, the same map exactly."""
     from lwbench import OccupancyMap

@@ -30,6 +30,7 @@ def _lwbench(target: Path, *args: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "lwbench.cli", *args], env=env, capture_output=True, text=True)
 
 
+@pytest.mark.heavy
 def test_example_plugin_is_listed_with_its_provider(installed):
     res = _lwbench(installed, "list", "--json")
     assert res.returncode == 0, res.stderr
@@ -38,6 +39,7 @@ def test_example_plugin_is_listed_with_its_provider(installed):
     assert codecs["half"]["provider"].startswith("lwbench-example-codec")
 
 
+@pytest.mark.heavy
 def test_example_plugin_runs_and_lands_on_the_leaderboard(installed, tmp_path, kitti_folder):
     store = tmp_path / "r.sqlite"
     res = _lwbench(installed, "run", "--dataset", str(kitti_folder), "--codec", "half",
@@ -50,6 +52,7 @@ def test_example_plugin_runs_and_lands_on_the_leaderboard(installed, tmp_path, k
     assert half["chamfer"] < 0.01
 
 
+@pytest.mark.heavy
 def test_the_example_plugins_own_tests_pass_with_lwbenchs_conformance_kit(installed):
     """A third-party package runs lwbench.testing.check_codec in its own test suite."""
     env = {**os.environ, "PYTHONPATH": str(installed)}

@@ -110,6 +110,7 @@ def test_shapes_and_the_siamese_loss():
     assert parts["global"] > 0
 
 
+@pytest.mark.heavy
 def test_training_steps_lower_the_loss_on_a_fixed_batch():
     torch.manual_seed(0)
     net = PocoNet(SMALL)
@@ -174,6 +175,7 @@ def test_a_corrupt_or_foreign_checkpoint_is_a_clear_error(tmp_path):
         load_checkpoint(str(tmp_path / "mismatch.pt"), "cpu")
 
 
+@pytest.mark.heavy
 def test_the_shipped_checkpoint_loads_and_selects_exactly_the_budget():
     frame = room_scan(get_sensor("hdl64e"), seed=3, index=2)
     for ratio in (1 / 12, 1 / 24):
@@ -231,6 +233,7 @@ def test_the_noisy_oracle_codec_is_the_curve_s_selection(tmp_path, street):
     assert len(balanced) == len(idx) and kept_precision(labels[2], balanced) < 1.0  # every cell gets points
 
 
+@pytest.mark.heavy
 def test_mapping_drive_labels_count_only_the_mapping_drive(tmp_path):
     from lwbench.registry import get_registry
 
@@ -309,6 +312,7 @@ def test_heading_augmentation_keeps_the_driving_direction():
     np.testing.assert_array_equal(augment_heading(pts, np.random.default_rng(0), "none"), pts)
 
 
+@pytest.mark.heavy
 def test_poconet_ranks_by_p_high_with_spatial_balance_and_a_random_control(tmp_path):
     frame = room_scan(get_sensor("hdl64e"), seed=3, index=2)
     ranked = PocoNetSelector(ratio=1 / 12)

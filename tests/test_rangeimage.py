@@ -244,6 +244,7 @@ def real_like_scan() -> Frame:
     return Frame(pts.astype(np.float32), s)
 
 
+@pytest.mark.heavy
 @pytest.mark.parametrize("which", ["room", "hdl32-ring", "tunnel", "real-like"])
 def test_rotating_the_scan_by_a_fraction_of_a_step_moves_nothing(which: str) -> None:
     """Issue 25: a rotation of the scan before encoding moved coverage from 0.739 to 1.0."""
@@ -458,6 +459,7 @@ def real_folders() -> list[str]:
     return sorted(p.name for p in root.iterdir() if p.is_dir()) if root.is_dir() else ["(absent)"]
 
 
+@pytest.mark.heavy
 @pytest.mark.parametrize("folder", real_folders())
 def test_every_real_folder_is_covered_at_the_steps_error(real_data: Path, folder: str) -> None:
     """Issue 24's bar on each shared real folder (first frame, the loader's sensor model, the

@@ -108,6 +108,7 @@ def test_a_decoded_return_nearer_than_the_scans_nearest_return_still_counts():
     assert m["range_median"] == 0.0 and m["range_rmsd"] == pytest.approx(0.15 * np.sqrt(50 / returns.sum()), rel=0.01)
 
 
+@pytest.mark.heavy
 def test_draco_on_kitti_turned_by_a_fraction_of_a_step_keeps_its_range_median(real_data):
     # Issue 32: one pair 2.8 m apart (a copy pushed out of its window near the sensor) takes the
     # RMSD from 2.77 to 8.39 mm at a quarter step; the robust companion does not move.

@@ -59,6 +59,7 @@ def _run(tmp_path, kitti_folder, name, codecs, **kw):
     return summary, _rows(tmp_path / f"{name}.sqlite")
 
 
+@pytest.mark.heavy
 def test_ray_and_local_executors_store_identical_rows(ray_cluster, tmp_path, kitti_folder):
     codecs = [("raw", {}), ("random", {"ratio": ["0.2"]}), ("voxel", {}), ("rangeimage", {})]
     _, on_ray = _run(tmp_path, kitti_folder, "ray", codecs, executor="ray")
@@ -66,6 +67,7 @@ def test_ray_and_local_executors_store_identical_rows(ray_cluster, tmp_path, kit
     assert len(on_ray) == 12 and on_ray == local
 
 
+@pytest.mark.heavy
 def test_a_hanging_plugin_times_out_on_ray_as_one_failure_row(ray_cluster, tmp_path, kitti_folder):
     summary, rows = _run(tmp_path, kitti_folder, "hang", [("test-hang", {}), ("raw", {})], executor="ray",
                          timeout_s=40)  # the limit counts from submission: a Ray worker's start-up on a

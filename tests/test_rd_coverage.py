@@ -85,6 +85,7 @@ def store(tmp_path_factory, kitti_folder):
     return path
 
 
+@pytest.mark.heavy
 def test_rd_takes_min_coverage(store):
     def rd(*extra):
         res = CliRunner().invoke(app, ["rd", "--store", str(store), "--distortion", "range_rmsd", "--format", "json",

@@ -7,9 +7,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 README = Path(__file__).resolve().parents[1] / "README.md"
 
 
+@pytest.mark.heavy
 def test_the_readme_gate_example_runs_in_a_fresh_project(tmp_path):
     text = README.read_text()
     (block,) = [b for b in re.findall(r"```python\n(.*?)```", text, re.S) if "lwbench_gate" in b]

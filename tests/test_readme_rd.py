@@ -14,6 +14,7 @@ import shlex
 import sys
 from pathlib import Path
 
+import pytest
 from typer.testing import CliRunner
 
 from lwbench.cli import app
@@ -43,6 +44,7 @@ def _toml_value(value) -> str:
     return repr(value)
 
 
+@pytest.mark.heavy
 def test_the_readme_rd_example_gives_a_bd_rate(tmp_path):
     args = _readme_rd_command()
     reference = args[args.index("--reference") + 1]

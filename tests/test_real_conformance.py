@@ -60,6 +60,7 @@ def run_codecs(folder: Path, store: Path, codecs: list[str], frames: int | None)
     return res.output
 
 
+@pytest.mark.heavy
 @pytest.mark.parametrize("folder", FOLDERS)
 def test_every_fast_codec_on_the_first_frame(real_data: Path, folder: str, tmp_path: Path) -> None:
     print(run_codecs(real_data / folder, tmp_path / "r.sqlite", FAST_CODECS, frames=1))

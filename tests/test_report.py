@@ -28,6 +28,7 @@ def report(tmp_path_factory, kitti_folder) -> Path:
     return root / "out"
 
 
+@pytest.mark.heavy
 def test_the_page_is_self_contained_and_every_plot_has_files(report):
     page = (report / "index.html").read_text()
     assert not re.search(r"""(src|href)=["']https?://""", page), "the page must open with no network"
@@ -39,6 +40,7 @@ def test_the_page_is_self_contained_and_every_plot_has_files(report):
     assert page.count('data-last="1"') == 2  # the two random selections rank last (and are grey)
 
 
+@pytest.mark.heavy
 @pytest.mark.skipif(CHROMIUM is None, reason="Chromium is not installed here (Debian: apt-get install chromium)")
 def test_the_page_in_a_headless_browser(report, tmp_path):
     sync_api = pytest.importorskip("playwright.sync_api", reason="playwright (the dev extra) is not installed")
@@ -96,6 +98,7 @@ def _wide_board_page(tmp_path: Path) -> Path:
     return page
 
 
+@pytest.mark.heavy
 @pytest.mark.skipif(CHROMIUM is None, reason="Chromium is not installed here (Debian: apt-get install chromium)")
 def test_a_wide_board_never_widens_the_page_past_a_1400px_window(tmp_path):
     sync_api = pytest.importorskip("playwright.sync_api", reason="playwright (the dev extra) is not installed")

@@ -94,6 +94,7 @@ console.log(JSON.stringify(clicks.map(([col, asc, num]) =>
     return json.loads(out.stdout)
 
 
+@pytest.mark.heavy
 @pytest.mark.skipif(NODE is None, reason="node is not installed (the page's script runs under it here)")
 def test_every_click_sorts_as_the_board_does(tmp_path):
     store_path = tmp_path / "r.sqlite"

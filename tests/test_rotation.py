@@ -67,6 +67,7 @@ def _cases() -> list:
     return cases
 
 
+@pytest.mark.heavy
 @pytest.mark.parametrize("codec", _cases())
 def test_a_fraction_of_an_azimuth_step_moves_no_codecs_coverage(codec: str) -> None:
     moved = {}
@@ -111,6 +112,7 @@ def _assert_within_5_percent(rmsds: list[float]) -> None:
     assert all(abs(s - 1) <= 0.05 for s in spread), f"range RMSD over rotations {FRACTIONS}, / unrotated: {spread}"
 
 
+@pytest.mark.heavy
 def test_draco_range_rmsd_does_not_move_when_near_returns_sit_before_far_ones() -> None:
     """Issue 32, item 5: Draco's ~mm position grid moves a return 1-2 m away by more than half an
     azimuth step, out of its own direction window, where a return metres behind it lies; version
@@ -123,6 +125,7 @@ def test_draco_range_rmsd_does_not_move_when_near_returns_sit_before_far_ones() 
     _assert_within_5_percent(_draco_range_rmsds(Frame(spinning_scan(sensor, ranges=(1.2, 60.0), seed=3), sensor)))
 
 
+@pytest.mark.heavy
 def test_draco_range_rmsd_on_the_shared_kitti_frame_does_not_move(real_data) -> None:
     """Issue 32's done-when on the real frame: Draco's range RMSD within 5 % of its unrotated
     value at every fraction (version 4: 2.77 mm unrotated, 8.39 mm at a quarter step, from one

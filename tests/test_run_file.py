@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 
+import pytest
 from typer.testing import CliRunner
 
 from lwbench.cli import app
@@ -13,6 +14,7 @@ def _invoke(*args: str):
     return CliRunner().invoke(app, list(args), catch_exceptions=False)
 
 
+@pytest.mark.heavy
 def test_a_run_file_runs_every_grid_point_and_seed(tmp_path, kitti_folder):
     store = tmp_path / "rd.sqlite"
     (tmp_path / "study.toml").write_text(f"""

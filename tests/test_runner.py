@@ -169,6 +169,7 @@ def test_same_command_gives_the_same_table(registry, tmp_path):
     assert tables[0] == tables[1]
 
 
+@pytest.mark.heavy
 def test_parallel_workers_give_the_same_rows_as_one_process(tmp_path):
     from lwbench.registry import get_registry
 

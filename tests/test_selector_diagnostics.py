@@ -208,6 +208,7 @@ def two_drive_street(tmp_path_factory):
     return root, ds
 
 
+@pytest.mark.heavy
 def test_diagnose_reports_each_label_definition(two_drive_street):
     from lwbench.cli import app
 

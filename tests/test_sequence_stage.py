@@ -61,6 +61,7 @@ def in_process(tmp_path_factory):
         yield store, summary, events
 
 
+@pytest.mark.heavy
 def test_every_configuration_and_metric_gets_a_row_from_payloads(in_process):
     store, summary, _ = in_process
     values = _sequence_values(store)
@@ -97,6 +98,7 @@ def test_progress_comes_from_inside_a_task(in_process):
     assert any("tracking" in w for w in steps) and any("originals" in w for w in steps)
 
 
+@pytest.mark.heavy
 def test_worker_processes_give_the_same_rows(in_process, tmp_path):
     store, _, _ = in_process
     with ResultStore(tmp_path / "two.sqlite") as two:
@@ -105,6 +107,7 @@ def test_worker_processes_give_the_same_rows(in_process, tmp_path):
         assert _same(_sequence_values(two), _sequence_values(store))
 
 
+@pytest.mark.heavy
 @pytest.mark.skipif(importlib.util.find_spec("ray") is None, reason="Ray is not installed here")
 def test_ray_tasks_give_the_same_rows(in_process, tmp_path):
     import ray
@@ -120,6 +123,7 @@ def test_ray_tasks_give_the_same_rows(in_process, tmp_path):
         ray.shutdown()
 
 
+@pytest.mark.heavy
 def test_frames_stored_without_payloads_are_re_evaluated_for_the_sequence_metrics(in_process, tmp_path):
     store, _, _ = in_process
     with ResultStore(tmp_path / "later.sqlite") as later:
@@ -159,6 +163,7 @@ def test_the_contract_fails_a_metric_that_keeps_the_drive():
     check_metric_streams(_Streamer)
 
 
+@pytest.mark.heavy
 def test_every_installed_sequence_metric_streams():
     for name, cls in sorted(get_registry().sequence_metrics.items()):
         if name != "kiss" or importlib.util.find_spec("kiss_icp") is not None:

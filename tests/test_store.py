@@ -173,6 +173,7 @@ def _open_and_close(path: str, start, results) -> None:
         results.put(str(exc))
 
 
+@pytest.mark.heavy
 @pytest.mark.skipif(not hasattr(__import__("os"), "fork"), reason="needs fork to start the racers together")
 def test_runs_that_open_a_new_store_at_the_same_moment_all_get_it(tmp_path):
     """Switching a new file to WAL takes an exclusive lock and SQLite does not wait for it: three

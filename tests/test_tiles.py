@@ -34,6 +34,7 @@ def test_tiles_partition_the_keys_and_a_scan_reaches_the_tiles_near_it():
     assert {t for t, _ in split_by_tile(close_keys, 0.2)} <= near
 
 
+@pytest.mark.heavy
 def test_an_occupancy_map_spilled_to_disk_is_the_one_held_in_memory(street, monkeypatch):
     scans, sensor = street
 
@@ -48,6 +49,7 @@ def test_an_occupancy_map_spilled_to_disk_is_the_one_held_in_memory(street, monk
         assert len(held[v]) > 1000 and np.array_equal(held[v], spilled[v])
 
 
+@pytest.mark.heavy
 def test_a_localization_map_spilled_to_disk_is_the_one_held_in_memory(street):
     scans, _ = street
     maps = []

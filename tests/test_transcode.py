@@ -71,6 +71,7 @@ def _run_clouds(store: Path, codec: str) -> dict[int, np.ndarray]:
         return out
 
 
+@pytest.mark.heavy
 @pytest.mark.parametrize("layout", ["frames", "stream"])
 @pytest.mark.parametrize("codec,params", [("rangeimage", []), ("random", ["ratio=0.2"])])
 def test_encode_file_decode_gives_the_run_cloud(tmp_path, lab_folder, run_store, layout, codec, params):
@@ -102,6 +103,7 @@ def test_a_fresh_process_decodes_a_stream_of_a_sensor_it_never_saw(tmp_path, lab
     assert sorted(p.name for p in (tmp_path / "dec").glob("*.ply")) == [f"{i:06d}.rangeimage.ply" for i in range(3)]
 
 
+@pytest.mark.heavy
 def test_a_lone_payload_needs_its_sensor_beside_it(tmp_path, lab_folder):
     res = invoke("encode", lab_folder, "--codec", "rangeimage", "--out", tmp_path / "enc", "--frames", "1")
     assert res.exit_code == 0

@@ -58,6 +58,7 @@ def test_a_decoded_file_and_the_codec_path_show_the_same_cloud(tmp_path, kitti_f
     assert out.stat().st_size > 20_000
 
 
+@pytest.mark.heavy
 def test_view_reads_a_frame_of_a_stream_file(tmp_path, kitti_folder, headless):
     assert runner.invoke(app, ["encode", str(kitti_folder), "--codec", "rangeimage", "--out", str(tmp_path),
                                "--stream"]).exit_code == 0

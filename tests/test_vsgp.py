@@ -84,6 +84,7 @@ def test_tunnel_round_trip_accuracy_and_ratio(tunnel, tunnel_default):
     assert tunnel.raw_bytes / len(data) > 100  # the issue's compression target
 
 
+@pytest.mark.heavy
 def test_the_paper_mode_is_one_gp_over_every_cell_with_learned_hyper_parameters(tunnel):
     codec = VSGPCodec(device="cpu", mode="paper", num_inducing=200)
     res = fit_scan(tunnel.points, tunnel.sensor, codec.fit_config(), CPU)
@@ -100,6 +101,7 @@ def test_more_inducing_points_give_a_smaller_error(tunnel):
     assert errors[0] > errors[1] > errors[2]
 
 
+@pytest.mark.heavy
 def test_inverse_occupancy_fits_far_planes_better():
     """A plane's inverse range is a smooth function of direction, its range is not: on the far
     walls of a big room the inverse transform errs less than the linear one."""
@@ -150,6 +152,7 @@ def _sim_frame() -> Frame:
     return get_registry().dataset("sim")(scene="tunnel", frames=1)[0]
 
 
+@pytest.mark.heavy
 @pytest.mark.parametrize("name", ["room", "hdl32-ring", "tunnel", "sim"])
 def test_rotating_a_scan_by_a_fraction_of_a_step_moves_coverage_by_at_most_001(name):
     frame = _anchor_frames()[name]
@@ -188,6 +191,7 @@ VARIANTS = [
 ]
 
 
+@pytest.mark.heavy
 @pytest.mark.parametrize("variant", VARIANTS, ids=[json.dumps(v) for v in VARIANTS])
 def test_every_payload_vsgp_writes_on_the_kits_scans_decodes(variant):
     scans = {
@@ -349,6 +353,7 @@ def test_a_byte_budget_below_the_fixed_size_is_refused(tunnel):
         VSGPCodec(device="cpu", bytes=64).encode(tunnel)
 
 
+@pytest.mark.heavy
 def test_warm_start_stops_sooner_and_every_payload_decodes_alone():
     frames = [tunnel_scan(seed=20, noise=0.01 + 0.001 * i) for i in range(3)]
     params = {"mode": "paper", "num_inducing": 150, "steps": 20, "tol": 1e-3}
@@ -472,6 +477,7 @@ def test_collapsed_bound_is_a_lower_bound_and_tight_when_z_equals_x():
     assert bound(x) == pytest.approx(float(exact), abs=1e-4)
 
 
+@pytest.mark.heavy
 def test_refinement_steps_never_return_a_worse_bound(tunnel):
     res = fit_scan(tunnel.points, tunnel.sensor, FitConfig(steps=3, subsample=512, tile_points=0), CPU)
     assert 1 <= len(res.bounds) <= 4

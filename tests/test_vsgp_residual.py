@@ -67,6 +67,7 @@ def test_every_kept_return_is_decoded_within_tau(name, tau):
     assert kept >= 0.99  # at most MAX_SLOTS returns a cell are kept: these scans hold fewer
 
 
+@pytest.mark.heavy
 @pytest.mark.parametrize("name", ["room", "hdl32-ring"])
 def test_rotating_a_scan_moves_the_residual_layers_coverage_by_at_most_001(name):
     frame = check_frames()[name]
