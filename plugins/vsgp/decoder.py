@@ -30,11 +30,11 @@ from scipy.interpolate import CubicSpline
 from lwbench import MAX_WORK, PayloadError, SensorModel
 from lwbench.geometry import cartesian
 
-from .encoder import to_range, value_noise
 from .gp import Hyper, KernelTables, Predictor
 from .grid import Tiling, blend_weights, blend_width, phases_of
 from .residuals import apply_residuals, clamp_prediction, slot_shift, unpack_residuals
 from .tiles import gather_points, tile_members
+from .values import to_range, value_noise
 from .wire import Body
 
 __all__ = [

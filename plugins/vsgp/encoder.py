@@ -35,6 +35,7 @@ from lwbench import ParameterError, SensorModel
 from .gp import Hyper, chord_sq, posterior_inducing_mean, rq_cross, rq_from_sqdist
 from .grid import HALO_ROWS, Tiling, halo_cols, project_anchored
 from .tiles import Points, gather_points, tile_members
+from .values import LS_FACTOR_AZ, occupancy, to_range
 from .wire import MAX_TILE_INDUCING, Body, TileModel, dequantize_azimuth, quantize_azimuth
 
 __all__ = [
@@ -51,8 +52,6 @@ __all__ = [
     "empty_body",
 ]
 
-# Azimuth lengthscale / mean inducing spacing along a beam (sweep in docs/vsgp.md).
-LS_FACTOR_AZ = 1.5
 #: The smallest tiles ``_layout`` shrinks to (points a tile, before halos).
 MIN_TILE_POINTS = 16
 #: Fit bins per azimuth lengthscale: q(u) changes over a lengthscale, and a bin carries the sums
@@ -86,21 +85,6 @@ class FitResult:
     steps_run: int = 0
     bounds: list[float] = field(default_factory=list)
     timings: dict[str, float] = field(default_factory=dict)
-
-
-def occupancy(r: np.ndarray, transform: str, r_oc: float) -> np.ndarray:
-    """``f(r)``: ``r_oc - r`` (linear, the paper's) or ``1 / r`` (inverse)."""
-    if transform == "linear":
-        return r_oc - r
-    return 1.0 / r
-
-
-def to_range(f: np.ndarray, transform: str, r_oc: float) -> np.ndarray:
-    """Inverse of :func:`occupancy`; ``inf`` where an inverse occupancy is not positive (free)."""
-    if transform == "linear":
-        return r_oc - f
-    with np.errstate(divide="ignore"):
-        return np.where(f > 0, 1.0 / np.where(f > 0, f, 1.0), np.inf)
 
 
 def occupancy_weights(occ: np.ndarray, f: np.ndarray, adapt: float) -> np.ndarray:
@@ -203,15 +187,6 @@ def initial_hyper(
     scale = float(np.mean(np.square(y))) if len(y) else 1.0
     vals = [min(ls_az, 2 * math.pi), beam_step, 1.0, max(scale, 1e-10), max(noise_var, 1e-13)]
     return Hyper(*(float(np.float32(v)) for v in vals))
-
-
-def value_noise(h: Hyper, col_step: float) -> float:
-    """Variance of an inducing value: the noise over the cells it averages, about
-    ``ls_az / (LS_FACTOR_AZ * col_step)`` of them along its beam (the derived lengthscale is
-    ``LS_FACTOR_AZ`` inducing spacings). Measured: 0.1x the noise variance cost the sim tunnel
-    0.1 cm (8.34 -> 8.46, 90 cells a point) and took KITTI 00 frame 0 at 16,000 points from
-    0.91 m to 0.67 m RMSD (7 cells a point); this rule gives 0.011x and 0.15x."""
-    return h.noise * min(1.0, LS_FACTOR_AZ * col_step / h.ls_az)
 
 
 def fit_stride(h: Hyper, col_step: float, requested: int = 0) -> int:
