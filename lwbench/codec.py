@@ -68,6 +68,14 @@ class Codec(abc.ABC):
 
     def __init__(self, **params: Any) -> None:
         self.config: dict[str, Any] = resolve_params(self.name, self.all_params(), params)
+        self._sensors = SensorCatalog()  # see :attr:`sensors`
+        self._sensors_handed = False  # whether use_sensors was called (see read_sensor)
+
+    def reset_stream(self) -> None:
+        """Forget any state carried from one scan to the next (VSGP's warm start does), so the
+        next encode starts cold. ``lwbench stream`` calls it after its untimed warm-up encode, so
+        a stream is timed from a cold start. The default: a codec with no such state."""
+        return None  # deliberately nothing to forget (not abstract: most codecs keep no state)
 
     @classmethod
     def missing(cls, config: dict[str, Any]) -> str:
@@ -116,10 +124,7 @@ class Codec(abc.ABC):
     def sensors(self) -> SensorCatalog:
         """The sensor tables this instance knows: those it encoded with, and those it was handed
         (:meth:`use_sensors`). A payload naming a sensor by id decodes only with its table here."""
-        catalog = self.__dict__.get("_sensors")
-        if catalog is None:
-            catalog = self.__dict__["_sensors"] = SensorCatalog()
-        return catalog
+        return self._sensors
 
     def use_sensors(self: C, sensors: Iterable[SensorModel]) -> C:
         """Hand this instance (a decoder) the sensors its payloads may name -- what a receiver
@@ -127,7 +132,7 @@ class Codec(abc.ABC):
         decode``. From then on those (and the ones it encoded with) are *all* it resolves. Returns
         the codec, so ``MyCodec(**p).use_sensors([s]).decode(data)`` reads."""
         self.sensors.update(sensors)
-        self.__dict__["_sensors_handed"] = True
+        self._sensors_handed = True
         return self
 
     def sensor_meta(self, sensor: SensorModel) -> dict:
@@ -146,7 +151,7 @@ class Codec(abc.ABC):
         with a ``DeprecationWarning``; every lwbench receiver hands its sensors, so none of its
         decodes depends on that."""
         value = self.meta_field(payload, key, dict)
-        legacy = not self.__dict__.get("_sensors_handed", False)
+        legacy = not self._sensors_handed
         try:
             return SensorModel.from_wire(value, self.sensors, legacy=legacy)
         except UnknownSensorError as exc:
@@ -226,6 +231,12 @@ class SelectionCodec(Codec):
     @abc.abstractmethod
     def select(self, frame: Frame) -> np.ndarray:
         """Indices of the points to keep (unique, in range)."""
+
+    def scores(self, frame: Frame) -> np.ndarray | None:
+        """Per-point scores the selection ranks by (higher keeps first), for the learned-selector
+        diagnostics (``lwbench diagnose``), or ``None`` for a selector without scores (the
+        default). PocoNet returns its network's priority."""
+        return None
 
     def budget(self, n_points: int) -> int:
         """How many of ``n_points`` to keep, from ``points`` or ``ratio``."""

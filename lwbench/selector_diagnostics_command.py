@@ -71,12 +71,11 @@ def diagnose_selector(
     idx = list(range(len(dataset))) if frames is None else list(frames)
     per: dict[str, list] = {name: [] for name in labels}
     decoded = []
-    scorer = getattr(codec, "scores", None)
     for i in idx:
         f = dataset[i]
         kept = np.asarray(codec.select(f), dtype=np.int64)
         decoded.append(np.asarray(f.points[kept], dtype=np.float32))
-        scores = scorer(f) if callable(scorer) else None
+        scores = codec.scores(f)
         for name, folder in labels.items():
             per[name].append(frame_diagnostics(folder.classes(i, len(f)), kept, scores))
     out: dict[str, Any] = {

@@ -43,9 +43,7 @@ def main(argv: list[str] | None = None) -> int:
     codec_cls = reg.codec(cfg["codec"]["name"])
     encoder = codec_cls(**cfg["codec"]["params"])
     encoder.encode(frames[0])  # warm-up (imports, JIT, allocator): untimed, as the runner does
-    reset = getattr(encoder, "reset_stream", None)
-    if callable(reset):  # a codec with state across a stream (vsgp's warm_start) starts it cold
-        reset()
+    encoder.reset_stream()  # a codec with state across a stream (vsgp's warm_start) starts it cold
     ahead: list[tuple[bytes, float]] = []
     if cfg.get("encode", "live") == "ahead":
         # Every scan encoded (and timed) now; in the stream each payload is ready its measured
