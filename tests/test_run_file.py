@@ -51,9 +51,8 @@ def test_the_shipped_study_file_plans(tmp_path):
     from pathlib import Path
 
     from lwbench.registry import get_registry
-    from lwbench.run.config import load_run_file
+    from lwbench.run.config import read_run_file
 
     study = Path(__file__).resolve().parents[1] / "examples" / "runs" / "rd_tunnel.toml"
-    run_file = load_run_file(study, get_registry())
-    (plan,) = run_file.plans
+    (plan,) = read_run_file(study).plans(get_registry())
     assert len(plan.configs) == 1 + 4 + 8 + 5 + 5 + 4 + 4 + 3 * 4

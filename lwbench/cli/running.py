@@ -51,8 +51,6 @@ def run(
     no_sequence_metrics: Annotated[bool, typer.Option(
         "--no-sequence-metrics", help="Skip the localization and occupancy metrics (run when the dataset has poses).",
         rich_help_panel=METRICS)] = False,
-    sequence_metrics_on: Annotated[bool, typer.Option(
-        "--sequence-metrics", hidden=True, help="The default (kept so that scripts that say it still run).")] = False,
     metric: Annotated[list[str] | None, typer.Option(
         "--metric", help="Also run this opt-in sequence metric, e.g. kiss (repeat; `lwbench list` marks them).",
         rich_help_panel=METRICS)] = None,
@@ -88,8 +86,6 @@ def run(
     from lwbench.run.config import read_run_file
     from lwbench.store import ResultStore
 
-    if sequence_metrics_on and no_sequence_metrics:
-        raise ParameterError("--sequence-metrics and --no-sequence-metrics: give one of them")
     reg = registry()
     options = {"retry_failed": retry_failed, "force": force, "isolate": isolate, "timeout_s": timeout or None,
                "memory_mb": memory_limit, "executor": executor, "address": address}

@@ -28,14 +28,11 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Mapping
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from lwbench.errors import ParameterError
-from lwbench.registry import Registry
 
-from .plan import RunPlan
 from .request import DatasetRequest, RunRequest
 
 if sys.version_info >= (3, 11):
@@ -43,18 +40,11 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
-__all__ = ["RunFile", "load_run_file", "read_run_file"]
+__all__ = ["read_run_file"]
 
 _TOP = {"store", "frames", "seeds", "sequence_metrics", "metrics", "workers", "dataset", "codec", "metric_params"}
 _DATASET = {"name", "params"}
 _CODEC = {"name", "params"}
-
-
-@dataclass(frozen=True)
-class RunFile:
-    plans: tuple[RunPlan, ...]
-    store: Path | None
-    workers: int
 
 
 def _check_keys(table: Mapping[str, Any], allowed: set[str], where: str) -> None:
@@ -110,9 +100,3 @@ def read_run_file(path: str | Path) -> RunRequest:
         store=Path(store) if store else None,
         workers=int(doc.get("workers", 1)),
     )
-
-
-def load_run_file(path: str | Path, registry: Registry) -> RunFile:
-    """Every :class:`RunPlan` a run file asks for (one per dataset and seed), validated."""
-    request = read_run_file(path)
-    return RunFile(tuple(request.plans(registry)), request.store, request.workers)
