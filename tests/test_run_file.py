@@ -56,3 +56,36 @@ def test_the_shipped_study_file_plans(tmp_path):
     study = Path(__file__).resolve().parents[1] / "examples" / "runs" / "rd_tunnel.toml"
     (plan,) = read_run_file(study).plans(get_registry())
     assert len(plan.configs) == 1 + 4 + 8 + 5 + 5 + 4 + 4 + 3 * 4
+
+
+def test_a_codec_named_twice_runs_the_union_of_its_grids_and_a_dataset_sets_its_frames(tmp_path):
+    """Issue 34, item 4: what tools/codecs_rd.sh looped over `lwbench run` for -- rangeimage's
+    step swept and its lossless mode with both refine settings, one dataset at 5 frames and
+    another at 1 -- is one run file."""
+    from lwbench.registry import get_registry
+    from lwbench.run.config import read_run_file
+
+    path = tmp_path / "rd.toml"
+    path.write_text(
+        '[[dataset]]\nname = "sim"\nparams = { scene = "tunnel" }\nframes = 5\n'
+        '[[dataset]]\nname = "sim"\nparams = { scene = "urban" }\nframes = 1\n'
+        '[[codec]]\nname = "rangeimage"\nparams = { step = [0.05, 0.02] }\n'
+        '[[codec]]\nname = "rangeimage"\nparams = { mode = "lossless", refine = ["beam", "none"] }\n'
+        '[[codec]]\nname = "raw"\n'
+    )
+    tunnel, urban = read_run_file(path).plans(get_registry())
+    assert (tunnel.frames, urban.frames) == (5, 1)
+    ri = [c.params for c in tunnel.configs if c.name == "rangeimage"]
+    assert sorted(p["step"] for p in ri if p["mode"] != "lossless") == [0.02, 0.05]
+    assert sorted(p["refine"] for p in ri if p["mode"] == "lossless") == ["beam", "none"]
+    assert len(ri) == 4 and [c.name for c in tunnel.configs].count("raw") == 1
+
+
+def test_a_dataset_frames_that_is_not_a_positive_integer_is_refused(tmp_path):
+    from lwbench.errors import ParameterError
+    from lwbench.run.config import read_run_file
+
+    path = tmp_path / "bad.toml"
+    path.write_text('[[dataset]]\nname = "sim"\nframes = 0\n[[codec]]\nname = "raw"\n')
+    with pytest.raises(ParameterError, match="frames must be a positive integer"):
+        read_run_file(path)

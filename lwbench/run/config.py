@@ -13,10 +13,18 @@ team commits, so a published rate-distortion figure is one command (``lwbench ru
     [[dataset]]
     name = "sim"                           # a registered name or a path
     params = { scene = "tunnel" }
+    frames = 5                             # optional: this dataset's first N frames
 
     [[codec]]
     name = "draco"
     params = { quantization_bits = [10, 12, 14, 16] }   # a list is a sweep, a scalar one value
+
+    [[codec]]                              # a codec named again: the union of its grids runs
+    name = "rangeimage"
+    params = { step = [0.05, 0.02, 0.01] }
+    [[codec]]
+    name = "rangeimage"
+    params = { mode = "lossless", refine = ["beam", "none"] }
 
     [metric_params]
     geometry = { peak = 59.70 }
@@ -43,7 +51,7 @@ else:  # pragma: no cover - Python 3.10
 __all__ = ["read_run_file"]
 
 _TOP = {"store", "frames", "seeds", "sequence_metrics", "metrics", "workers", "dataset", "codec", "metric_params"}
-_DATASET = {"name", "params"}
+_DATASET = {"name", "params", "frames"}
 _CODEC = {"name", "params"}
 
 
@@ -55,6 +63,14 @@ def _check_keys(table: Mapping[str, Any], allowed: set[str], where: str) -> None
 
 def _as_list(value: Any) -> list:
     return list(value) if isinstance(value, list) else [value]
+
+
+def _frames(value: Any, path: Path) -> int | None:
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ParameterError(f"{path}: a dataset's frames must be a positive integer, got {value!r}")
+    return value
 
 
 def _named(tables: list, what: str, allowed: set[str], path: Path) -> list[dict]:
@@ -82,14 +98,15 @@ def read_run_file(path: str | Path) -> RunRequest:
     codecs = _named(doc.get("codec", []), "codec", _CODEC, path)
     if not datasets or not codecs:
         raise ParameterError(f"{path}: needs at least one [[dataset]] and one [[codec]] table")
-    sweeps: dict[str, dict[str, list]] = {}
+    # A codec named in several tables runs the union of their grids (scikit-learn's ParameterGrid
+    # over a list of dicts): rangeimage's step swept in one, its lossless mode in another.
+    sweeps: dict[str, list[dict[str, list]]] = {}
     for c in codecs:
-        if c["name"] in sweeps:
-            raise ParameterError(f"{path}: codec {c['name']!r} appears twice; give it one params grid")
-        sweeps[c["name"]] = {k: _as_list(v) for k, v in c.get("params", {}).items()}
+        sweeps.setdefault(c["name"], []).append({k: _as_list(v) for k, v in c.get("params", {}).items()})
     store = doc.get("store")
     return RunRequest(
-        datasets=tuple(DatasetRequest(str(d["name"]), dict(d.get("params", {}))) for d in datasets),
+        datasets=tuple(DatasetRequest(str(d["name"]), dict(d.get("params", {})), _frames(d.get("frames"), path))
+                       for d in datasets),
         codecs=tuple(sweeps),
         sweeps=sweeps,
         frames=doc.get("frames"),

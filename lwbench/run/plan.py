@@ -41,6 +41,7 @@ __all__ = [
     "parse_assignments",
     "parse_metric_params",
     "parse_sweeps",
+    "Grids",
     "plan_run",
     "preflight",
     "resolve_dataset",
@@ -125,6 +126,10 @@ def expand_codec_configs(codec_cls: type[Codec], values: Mapping[str, Sequence[A
             raise ParameterError(f"{codec_cls.name}: {lacking}")
         configs.append(config)
     return _unique(configs)
+
+
+#: A codec's parameter grid (key -> values, their product is run), or several whose union is.
+Grids = Mapping[str, Sequence[Any]] | Sequence[Mapping[str, Sequence[Any]]]
 
 
 def _unique(configs: list[CodecConfig]) -> list[CodecConfig]:
@@ -222,7 +227,7 @@ def plan_run(
     dataset: str | None = None,
     dataset_params: Mapping[str, Any] | None = None,
     codecs: Sequence[str] = (),
-    sweeps: Mapping[str, Mapping[str, Sequence[Any]]] | None = None,
+    sweeps: Mapping[str, Grids] | None = None,
     frames: int | None = None,
     seed: int = 0,
     metric_params: Mapping[str, Mapping[str, Any]] | None = None,
@@ -240,7 +245,9 @@ def plan_run(
         raise ParameterError(f"parameters given for codec(s) not in this run: {', '.join(stray)}")
     configs: list[CodecConfig] = []
     for name in names:
-        configs += expand_codec_configs(registry.codec(name), sweeps.get(name, {}), seed)
+        grids = sweeps.get(name, {})
+        for grid in ([grids] if isinstance(grids, Mapping) else grids):  # a union of grids: each expanded
+            configs += expand_codec_configs(registry.codec(name), grid, seed)
     metric_params = {k: dict(v) for k, v in (metric_params or {}).items()}
     registry.check_metric_params(metric_params)
     named = tuple(dict.fromkeys(metrics))

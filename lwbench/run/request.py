@@ -21,7 +21,7 @@ from lwbench.registry import Registry
 from lwbench.store import ResultStore
 
 from .execute import DEFAULT_TIMEOUT_S
-from .plan import RunPlan, parse_assignments, parse_metric_params, parse_sweeps, plan_run, preflight
+from .plan import Grids, RunPlan, parse_assignments, parse_metric_params, parse_sweeps, plan_run, preflight
 from .runner import Progress, Runner, RunSummary
 
 __all__ = ["DEFAULT_STORE", "DatasetRequest", "RunRequest", "Study", "StudyOutcome"]
@@ -36,6 +36,7 @@ class DatasetRequest:
 
     source: str | None = None
     params: Mapping[str, Any] = field(default_factory=dict)
+    frames: int | None = None  # this dataset's first N frames (None: the request's ``frames``)
 
 
 @dataclass(frozen=True)
@@ -44,7 +45,9 @@ class RunRequest:
 
     datasets: tuple[DatasetRequest, ...] = (DatasetRequest(),)
     codecs: tuple[str, ...] = ()  # empty: the codecs that declare in_default_run
-    sweeps: Mapping[str, Mapping[str, Sequence[Any]]] = field(default_factory=dict)  # codec -> key -> values
+    # codec -> one grid (key -> values), or a list of grids whose union is run (a run file that
+    # names a codec twice: ``lossless`` with one refine set, ``step`` swept with another)
+    sweeps: Mapping[str, Grids] = field(default_factory=dict)
     frames: int | None = None  # the first N frames of every dataset
     seeds: tuple[int, ...] = (0,)
     metric_params: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
@@ -113,7 +116,7 @@ class RunRequest:
                 dataset_params=d.params,
                 codecs=self.codecs,
                 sweeps=self.sweeps,
-                frames=self.frames,
+                frames=d.frames if d.frames is not None else self.frames,
                 seed=seed,
                 metric_params=self.metric_params,
                 sequence_metrics=self.sequence_metrics,
