@@ -78,6 +78,15 @@ class Codec(abc.ABC):
         return None  # deliberately nothing to forget (not abstract: most codecs keep no state)
 
     @classmethod
+    def test_params(cls) -> dict[str, Any]:
+        """Parameters under which this codec encodes a small scan in about a second: what the
+        conformance kit, the fuzzers and the hostile-input campaigns run it with (as sktime's
+        ``get_test_params``). The default: its declared defaults. A codec whose defaults take
+        longer (a mixture fit, a GP with many inducing points) declares smaller settings here,
+        once, instead of every harness keeping its own copy."""
+        return {}
+
+    @classmethod
     def missing(cls, config: dict[str, Any]) -> str:
         """What a configuration lacks to run on any scan, in one line (``""``: nothing). A run
         asks before any work, so a codec that cannot run as configured (the oracle without its

@@ -32,8 +32,9 @@ from lwbench.testing import (
 
 # Smaller settings for the slow learners, so the whole suite stays fast; the contract does not
 # depend on model size.
-FAST_PARAMS = {"gmm": {"n_components": 8, "max_iter": 20, "fit_points": 4000}, "vsgp": {"num_inducing": 100}}
 REGISTRY = get_registry()
+# Each codec declares the settings a quick harness runs it with (Codec.test_params).
+FAST_PARAMS = {name: cls.test_params() for name, cls in REGISTRY.codecs.items() if cls.test_params()}
 CODECS = [(cls, FAST_PARAMS.get(name)) for name, cls in sorted(REGISTRY.codecs.items())]
 METRICS = sorted({**REGISTRY.frame_metrics, **REGISTRY.sequence_metrics}.items())
 

@@ -25,7 +25,7 @@ from lwbench.testing import room_scan
 REGISTRY = get_registry()
 # A codec that needs more than a scan (the oracle: labels) is refused when it is planned.
 CODECS = sorted(n for n, c in REGISTRY.codecs.items() if not n.startswith("test-") and not c.needs)
-FAST = {"gmm": {"n_components": ["8"], "max_iter": ["20"]}, "vsgp": {"num_inducing": ["100"]}}
+FAST = {name: {k: [v] for k, v in cls.test_params().items()} for name, cls in REGISTRY.codecs.items()}
 
 
 def _hostile_frames() -> dict[str, Frame]:

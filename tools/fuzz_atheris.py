@@ -21,7 +21,6 @@ with atheris.instrument_imports():
     from lwbench.payload import PayloadError
     from lwbench.registry import get_registry
 
-FAST = {"gmm": {"n_components": 8, "max_iter": 20, "fit_points": 4000}, "vsgp": {"num_inducing": 100}}
 
 
 class ProviderChooser:
@@ -42,7 +41,7 @@ def main() -> None:
         sys.exit(__doc__)
     name = sys.argv.pop(1)
     cls = get_registry().codec(name)
-    seeds = seed_payloads(cls, FAST.get(name))
+    seeds = seed_payloads(cls, cls.test_params())
     bodies = [_split(data).body for _, data in seeds]
 
     def one_input(data: bytes) -> None:

@@ -19,7 +19,6 @@ from lwbench.registry import get_registry
 
 # The learned models at sizes that keep seed encoding short; a decoder's checks do not depend
 # on them (the same settings as the conformance tests).
-FAST = {"gmm": {"n_components": 8, "max_iter": 20, "fit_points": 4000}, "vsgp": {"num_inducing": 100}}
 
 
 def main() -> None:
@@ -34,7 +33,8 @@ def main() -> None:
     rows = []
     with DecodeServer() as server:
         for name in names:
-            r = fuzz_codec(reg.codec(name), FAST.get(name), cases=args.cases, seed=args.seed, server=server)
+            cls = reg.codec(name)
+            r = fuzz_codec(cls, cls.test_params(), cases=args.cases, seed=args.seed, server=server)
             print(r.summary(), flush=True)
             rows.append(r)
             if args.out:

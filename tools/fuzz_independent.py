@@ -58,7 +58,6 @@ WALL_LIMIT_S = 5.0
 CEILING_MB = 2048
 MAX_COORDINATE_M = 10_000.0  # no LiDAR return is 10 km away (this tool's own constant)
 MARGIN = 0.5  # a decoded point may lie this share past its sensor's max range
-FAST = {"gmm": {"n_components": 8, "max_iter": 20, "fit_points": 4000}, "vsgp": {"num_inducing": 100}}
 SEEDS_PER_CODEC = 16
 
 
@@ -515,7 +514,7 @@ def seeds_for(name: str, cls, frames) -> tuple[list[tuple[dict, bytes, float | N
     """Up to SEEDS_PER_CODEC valid payloads ``(params, bytes, the scan's max range when the
     payload names its sensor)``, and the sensors the encoders named (the decoder must know them)."""
     out, sensors = [], []
-    for params in variants(cls, FAST.get(name, {})):
+    for params in variants(cls, cls.test_params()):
         for _, frame in frames:
             encoder = cls(**params)
             try:

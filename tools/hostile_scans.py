@@ -23,8 +23,6 @@ from lwbench.run.evaluate import Evaluator
 from lwbench.run.plan import expand_codec_configs
 from lwbench.testing import room_scan
 
-FAST = {"gmm": {"n_components": 8, "max_iter": 20}, "vsgp": {"num_inducing": 100}}
-
 
 def inputs(big: int) -> dict[str, Frame]:
     s = get_sensor("vlp16")
@@ -66,7 +64,8 @@ def main() -> None:
     for label, frame in frames.items():
         cells = []
         for name in names:
-            (config,) = expand_codec_configs(reg.codec(name), {k: [v] for k, v in FAST.get(name, {}).items()}, 0)
+            cls = reg.codec(name)
+            (config,) = expand_codec_configs(cls, {k: [v] for k, v in cls.test_params().items()}, 0)
             t = time.perf_counter()
             (result,) = ev.evaluate(frame, [config])
             cells.append(f"{cell(result)}, {time.perf_counter() - t:.1f} s")

@@ -92,7 +92,8 @@ def parametrize_with_checks(plugins: Iterable[type | tuple[type, dict]]):
         def test_lwbench_contract(plugin, check):
             check(plugin)
 
-    One pytest case per (plugin, check), named ``MyCodec-check_codec_corrupt``; a check that does
+    A codec given without params runs with its :meth:`~lwbench.Codec.test_params`. One pytest
+    case per (plugin, check), named ``MyCodec-check_codec_corrupt``; a check that does
     not apply to what the plugin declares (the budget check of a codec with no budget) is a skip
     that says why."""
     import pytest
@@ -100,6 +101,8 @@ def parametrize_with_checks(plugins: Iterable[type | tuple[type, dict]]):
     cases = []
     for item in plugins:
         plugin_cls, params = item if isinstance(item, tuple) else (item, None)
+        if params is None and plugin_kind(plugin_cls) == "codec":
+            params = plugin_cls.test_params() or None  # what the codec declares a quick harness runs
         for c in checks_for(plugin_kind(plugin_cls)):
             reason = skip_reason(c, plugin_cls)
             marks = [pytest.mark.skip(reason=reason)] if reason else []

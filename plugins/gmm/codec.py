@@ -33,7 +33,7 @@ from __future__ import annotations
 import functools
 import struct
 import warnings
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -173,6 +173,11 @@ class GMMCodec(RepresentationCodec):
     )
 
     # -- encode ------------------------------------------------------------------------------
+    @classmethod
+    def test_params(cls) -> dict[str, Any]:
+        # 8 components, 20 EM steps on 4,000 points: ~0.3 s a scan instead of ~20 s at the defaults.
+        return {"n_components": 8, "max_iter": 20, "fit_points": 4000}
+
     def _fit(self, points: torch.Tensor | np.ndarray, k: int, gen_seed: int) -> np.ndarray:
         from .mixture import TorchGaussianMixture
 

@@ -229,6 +229,10 @@ class VSGPCodec(RepresentationCodec):
         self.last_timings: dict[str, float] = {}
         self._warm: list[Hyper] | None = None
 
+    @classmethod
+    def test_params(cls) -> dict[str, Any]:
+        return {"num_inducing": 100}
+
     def _device(self) -> torch.device:
         return resolve_device(self.config["device"])
 
