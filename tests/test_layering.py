@@ -1,4 +1,4 @@
-"""The plugin boundary, held by the code itself: who may import whom (tools/import_graph.py).
+"""The plugin boundary, held by the code itself: who may import whom (tests/_import_graph.py).
 
 - core (``lwbench``) never imports a plugin or a built-in metric module;
 - every plugin folder (``plugins/<name>``, ``metrics``) imports from lwbench only the public API
@@ -12,19 +12,15 @@
 from __future__ import annotations
 
 import ast
-import importlib.util
-import sys
 from pathlib import Path
 
+import _import_graph as graph_tool
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-_spec = importlib.util.spec_from_file_location("import_graph", ROOT / "tools" / "import_graph.py")
-graph_tool = sys.modules.setdefault("import_graph", importlib.util.module_from_spec(_spec))
-_spec.loader.exec_module(graph_tool)
-
 MODULES = graph_tool.modules()
 GRAPH = graph_tool.edges(MODULES)
+
 
 def test_core_never_imports_a_plugin_and_plugins_import_only_the_public_api():
     assert graph_tool.breaches(MODULES) == []

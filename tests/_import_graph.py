@@ -1,7 +1,7 @@
 """The import graph of lwbench's source folders: module sizes, import circles, layering breaches.
 
-    python tools/import_graph.py            # sizes of lwbench/ modules over 300 lines, circles, breaches
-    python tools/import_graph.py --edges    # also every edge inside lwbench/
+    python tests/_import_graph.py            # sizes of lwbench/ modules over 300 lines, circles, breaches
+    python tests/_import_graph.py --edges    # also every edge inside lwbench/
 
 Every ``import`` statement counts, at module level or inside a function (a lazy import still
 ties two modules together). Edges go to the module named: ``from lwbench.run import X`` is an
