@@ -127,7 +127,7 @@ def test_leave_one_out_does_not_let_a_distorted_scan_lock_onto_itself(street):
 
 
 def test_reach_columns_hold_everything_within_each_points_radius():
-    from lwbench_metrics.localization import _in_columns, reach_columns
+    from lwbench_metrics.voxel_map import in_columns, reach_columns
 
     rng = np.random.default_rng(0)
     centres = rng.uniform(-50, 50, (150, 3))
@@ -136,7 +136,7 @@ def test_reach_columns_hold_everything_within_each_points_radius():
     probes = rng.uniform(-80, 80, (40_000, 3))
     d = np.linalg.norm(probes[:, None, :2] - centres[None, :, :2], axis=2)
     needed = (d <= radii[None]).any(axis=1)
-    kept = _in_columns(probes, reach_columns(centres, radii))
+    kept = in_columns(probes, reach_columns(centres, radii))
     assert needed.sum() > 1000 and not np.any(needed & ~kept)
     assert kept.sum() < 1.6 * needed.sum()  # whole columns, not the whole map
 

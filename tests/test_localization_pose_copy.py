@@ -5,15 +5,15 @@ view whose base is the whole result, correspondence set included (a tracking wor
 from __future__ import annotations
 
 import numpy as np
-
-from metrics.localization import ICP_PARAMS, _cloud, _register, _with_normals
+from lwbench_metrics.localization import ICP_PARAMS, _register
+from lwbench_metrics.voxel_map import point_cloud, with_normals
 
 
 def test_register_returns_a_pose_that_owns_its_memory():
     rng = np.random.default_rng(0)
     pts = rng.uniform(-5, 5, size=(4000, 3))
     pts[:, 2] = np.round(pts[:, 2])  # planes, so point-to-plane ICP has normals to use
-    target = _with_normals(_cloud(pts), ICP_PARAMS)
+    target = with_normals(point_cloud(pts), ICP_PARAMS)
     moved = np.eye(4)
     moved[:3, 3] = (0.05, -0.03, 0.0)
     pose, _ = _register(pts, target, moved, ICP_PARAMS)
