@@ -111,6 +111,12 @@ def _box_rows(sensor: SensorModel) -> float:
     return len(_distinct_beams(sensor)) - 1 + 2 * _BEAM_MARGIN + 1.0
 
 
+def _point_tree(points: np.ndarray) -> cKDTree | None:
+    from scipy.spatial import cKDTree
+
+    return cKDTree(np.asarray(points, np.float64)) if len(points) >= 2 else None
+
+
 def _tree(coords: np.ndarray, sensor: SensorModel) -> cKDTree:
     from scipy.spatial import cKDTree  # here, not at import: `lwbench list` stays fast
 
@@ -128,6 +134,12 @@ def _returns(points: np.ndarray, sensor: SensorModel) -> np.ndarray:
     """Indices of the points that are returns: not nearer than the sensor's minimum range."""
     r = np.linalg.norm(np.asarray(points, dtype=np.float64), axis=1)
     return np.flatnonzero((r > 0) & (r >= sensor.min_range))
+
+
+def windowed_returns(points: np.ndarray, coords: np.ndarray, sensor: SensorModel) -> np.ndarray:
+    """Indices of the returns that have a direction window (inside the table's margin)."""
+    r = np.linalg.norm(np.asarray(points, dtype=np.float64), axis=1)
+    return np.flatnonzero((r > 0) & (r >= sensor.min_range) & np.isfinite(coords[:, 0]))
 
 
 def _exact_pairs(p: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -200,12 +212,14 @@ def _greedy_matching(i: np.ndarray, j: np.ndarray, cost: np.ndarray) -> tuple[np
 
 def _own_copies(
     p_points: np.ndarray, q_points: np.ndarray, p_ret: np.ndarray, q_ret: np.ndarray, partner: np.ndarray,
+    p_tree3d: cKDTree | None = None,
 ) -> None:
     """After the window pairing: give an original return the decoded return that is unmistakably
     its copy, where the window left that copy unpaired and paired the original with something
     farther (or with nothing). Unmistakable: the two are each other's nearest return in 3-D (among
     *all* returns of the other cloud), and nearer each other than the original is to any other
     original return. Updates ``partner`` in place; the displaced partner is left unpaired.
+    ``p_tree3d``: a k-d tree of ``p_points[p_ret]`` (the metric caches it per frame).
 
     Why: a codec that quantizes positions moves a near return's direction by more than half a
     spacing (Draco's ~1 cm grid is an azimuth step at 1.5 m), so its own copy falls outside the
@@ -214,27 +228,34 @@ def _own_copies(
     left unpaired: rescuing before the window (v4's trial) let a VSGP residual return -- 5-10 cm
     off in range, at grazing incidence nearer a neighbour's original than its own -- be taken
     from its own original (tunnel coverage 1.0 -> 0.95); taking only what no window claimed can
-    never lower coverage. Only the two clouds enter: nothing is tuned to a sensor.
+    never lower coverage. Only the two clouds enter: nothing is tuned to a sensor. The search
+    starts from the unclaimed decoded returns, a few in a scan, so it costs two k-d tree
+    queries of that size and one tree of the decoded cloud.
     """
     from scipy.spatial import cKDTree  # here, not at import: `lwbench list` stays fast
 
     if len(p_ret) < 2 or not len(q_ret):
         return
-    p64 = np.asarray(p_points, np.float64)[p_ret]
-    q64 = np.asarray(q_points, np.float64)[q_ret]
-    workers = thread_budget()
-    d_pq, j = cKDTree(q64).query(p64, k=1, workers=workers)
-    originals = cKDTree(p64)
-    spacing = originals.query(p64, k=2, workers=workers)[0][:, 1]  # [:, 0] is the return itself
-    _, back = originals.query(q64[j], k=1, workers=workers)
     claimed = np.zeros(len(q_points), dtype=bool)
     claimed[partner[partner >= 0]] = True
-    current = np.full(len(p_ret), np.inf)
-    has = partner[p_ret] >= 0
-    current[has] = np.linalg.norm(p64[has] - np.asarray(q_points, np.float64)[partner[p_ret[has]]], axis=1)
-    own = (back == np.arange(len(p_ret))) & (d_pq < spacing) & (d_pq < current) & ~claimed[q_ret[j]]
-    # Mutual nearest neighbours are one-to-one: no decoded return is given twice.
-    partner[p_ret[own]] = q_ret[j[own]]
+    free_q = q_ret[~claimed[q_ret]]
+    if not len(free_q):
+        return
+    p64 = np.asarray(p_points, np.float64)
+    q64 = np.asarray(q_points, np.float64)
+    workers = thread_budget()
+    originals = p_tree3d if p_tree3d is not None else cKDTree(p64[p_ret])
+    _, back = originals.query(q64[free_q], k=1, workers=workers)  # each free copy's nearest original
+    cand = p_ret[back]
+    d_pq, j = cKDTree(q64[q_ret]).query(p64[cand], k=1, workers=workers)  # ... and its nearest decoded
+    mutual = q_ret[j] == free_q
+    spacing = originals.query(p64[cand], k=2, workers=workers)[0][:, 1]  # [:, 0] is the return itself
+    current = np.full(len(cand), np.inf)
+    has = partner[cand] >= 0
+    current[has] = np.linalg.norm(p64[cand[has]] - q64[partner[cand[has]]], axis=1)
+    own = mutual & (d_pq < spacing) & (d_pq < current)
+    # Mutual nearest neighbours are one-to-one: no original is given two copies.
+    partner[cand[own]] = free_q[own]
 
 
 def match_returns(
@@ -245,6 +266,7 @@ def match_returns(
     sensor: SensorModel,
     tolerance: float,
     p_tree: cKDTree | None = None,
+    p_tree3d: cKDTree | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Pair original and decoded returns one-to-one within the direction window.
 
@@ -292,7 +314,8 @@ def match_returns(
     ma, mb = _greedy_matching(a, b, np.einsum("ij,ij->i", gap, gap))
     partner[free_p[ma]] = free_q[mb]
     # Outside the table's margin only a bit-identical copy pairs (see the module docstring).
-    _own_copies(p_points, q_points, np.intersect1d(p_ret, p_idx), np.intersect1d(q_ret, q_idx), partner)
+    _own_copies(p_points, q_points, windowed_returns(p_points, p_coords, sensor),
+                windowed_returns(q_points, q_coords, sensor), partner, p_tree3d)
     return partner, near_p
 
 
@@ -337,7 +360,8 @@ class RangeMetric(FrameMetric):
         p_tree = ev.cached("direction_tree", lambda: _tree(p_coords[p_ok], sensor)) if p_ok.any() else None
         q_points = distinct_rows(ev.decoded)
         q_coords, q_range = direction_coordinates(q_points, sensor)
-        partner, near_p = match_returns(p_points, q_points, p_coords, q_coords, sensor, tol, p_tree)
+        p_tree3d = ev.cached("point_tree", lambda: _point_tree(p_points[windowed_returns(p_points, p_coords, sensor)]))
+        partner, near_p = match_returns(p_points, q_points, p_coords, q_coords, sensor, tol, p_tree, p_tree3d)
         # Returns only: no-return points (nearer than the min range) are in neither count; a
         # return outside the table's margin counts, with no partner (and, decoded, as false).
         n_p = int(((p_range > 0) & (p_range >= sensor.min_range)).sum())
