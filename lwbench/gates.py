@@ -21,13 +21,16 @@ import types
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from lwbench.errors import LwbenchError, ParameterError
 from lwbench.leaderboard import STATS, LeaderboardEntry, build_leaderboard
 from lwbench.registry import Registry, get_registry, new_registry
 
-__all__ = ["GateFailure", "GateResult", "gate_plan", "parse_threshold", "run_gate"]
+if TYPE_CHECKING:
+    from lwbench.run import RunRequest
+
+__all__ = ["GateFailure", "GateResult", "gate_plan", "gate_request", "parse_threshold", "run_gate"]
 
 
 class GateFailure(AssertionError):
@@ -126,7 +129,7 @@ def _registry_with(codec_cls: type) -> Registry:
     return reg
 
 
-def gate_plan(
+def gate_request(
     codec: str | type,
     *,
     params: Mapping[str, Any] | None = None,
@@ -138,9 +141,10 @@ def gate_plan(
     sequence_metrics: bool = False,
     metrics: Sequence[str] = (),
     registry: Registry | None = None,
-):
-    """The registry and the one-configuration :class:`~lwbench.run.RunPlan` of a gate: a
-    :class:`~lwbench.run.RunRequest` like the command line's, of one codec configuration."""
+) -> tuple[Registry, RunRequest]:
+    """The registry and the :class:`~lwbench.run.RunRequest` of a gate: a request like the
+    command line's, of one codec configuration, evaluated in this process (a gate's codec may
+    be a class defined in the test file, which no worker process could import)."""
     from lwbench.run import DatasetRequest, RunRequest
 
     if isinstance(codec, type):
@@ -156,7 +160,15 @@ def gate_plan(
         metric_params=metric_params or {},
         sequence_metrics=sequence_metrics,
         metrics=tuple(metrics),
+        isolate=False,
     )
+    return registry, request
+
+
+def gate_plan(codec: str | type, **options: Any):
+    """The registry and the one-configuration :class:`~lwbench.run.RunPlan` of a gate (``options``
+    are :func:`gate_request`'s)."""
+    registry, request = gate_request(codec, **options)
     (plan,) = request.plans(registry)
     if len(plan.configs) != 1:
         raise ParameterError("a gate runs exactly one codec configuration")
@@ -167,19 +179,23 @@ def run_gate(codec: str | type, *, store: str | Path | None = None, **options: A
     """Evaluate one codec configuration (``codec``: a registered name or a Codec class) on the
     first ``frames`` frames of ``dataset`` and return its results (then ``.require(...)``).
 
-    ``options`` are :func:`gate_plan`'s. ``store``: an existing results store is reused (cache
-    hits); ``None`` keeps the results in memory only. Sequence metrics (localization,
+    ``options`` are :func:`gate_request`'s. The gate runs through :meth:`lwbench.run.Study.run`,
+    the path every front end takes (the same preflight checks and refusals as ``lwbench run``).
+    ``store``: an existing results store is reused (cache hits); ``None`` keeps the results in
+    memory only. Sequence metrics (localization,
     occupancy) run only with ``sequence_metrics=True``; opt-in ones (kiss) only when also named
     in ``metrics``.
     """
-    from lwbench.run import Runner
+    from lwbench.run import Study
     from lwbench.store import ResultStore
 
-    registry, plan = gate_plan(codec, **options)
+    registry, request = gate_request(codec, **options)
+    study = Study.prepare(request, registry)
+    (plan,) = study.plans
+    if len(plan.configs) != 1:
+        raise ParameterError("a gate runs exactly one codec configuration")
     with ResultStore(store if store is not None else ":memory:") as results:
-        runner = Runner(results, plan, registry=registry)
-        runner.run()
-        keys = runner.keys()
+        keys = study.run(results).keys
         (entry,) = build_leaderboard(results, keys=keys, info=registry.metric_info(), min_coverage=0.0)
         frame_values: dict[str, dict[int, float]] = {}
         failures = []

@@ -26,7 +26,7 @@ from lwbench.leaderboard import build_leaderboard
 from lwbench.noise_floor import draw_floor, entry_floor, floor_lines
 from lwbench.plotting import pyplot
 from lwbench.registry import get_registry
-from lwbench.run import Runner, plan_run
+from lwbench.run import DatasetRequest, RunRequest, Study
 from lwbench.store import ResultStore
 from lwbench.testing import tunnel_scan
 
@@ -117,16 +117,10 @@ def test_the_floor_of_a_scan_follows_its_sensor_model_and_its_own_mask():
 def store(tmp_path_factory):
     path = tmp_path_factory.mktemp("floor") / "rd.sqlite"
     reg = get_registry()
-    plan = plan_run(
-        reg,
-        dataset="sim",
-        frames=1,
-        codecs=["raw", "rangeimage", "draco"],
-        sweeps={"rangeimage": {"step": [0.01, 0.05]}},
-        sequence_metrics=False,
-    )
-    with ResultStore(path) as results:
-        Runner(results, plan, registry=reg).run()
+    request = RunRequest(datasets=(DatasetRequest("sim"),), frames=1, codecs=("raw", "rangeimage", "draco"),
+                         sweeps={"rangeimage": {"step": [0.01, 0.05]}},
+                         sequence_metrics=False, isolate=False, store=path)
+    Study.prepare(request, reg).run()
     return path
 
 

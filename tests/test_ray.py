@@ -48,14 +48,13 @@ def _rows(path: Path) -> dict:
 
 def _run(tmp_path, kitti_folder, name, codecs, **kw):
     from lwbench.registry import new_registry
-    from lwbench.run import DatasetSpec, Runner, RunPlan, expand_codec_configs
-    from lwbench.store import ResultStore
+    from lwbench.run import DatasetRequest, RunRequest, Study
 
     reg = new_registry()
-    configs = [c for n, p in codecs for c in expand_codec_configs(reg.codec(n), p, 0)]
-    plan = RunPlan(DatasetSpec("kitti", {"path": str(kitti_folder)}), tuple(configs), sequence_metrics=False)
-    with ResultStore(tmp_path / f"{name}.sqlite") as store:
-        summary = Runner(store, plan, registry=reg, **kw).run()
+    request = RunRequest(datasets=(DatasetRequest("kitti", {"path": str(kitti_folder)}),),
+                         codecs=tuple(n for n, _ in codecs), sweeps={n: p for n, p in codecs},
+                         sequence_metrics=False, store=tmp_path / f"{name}.sqlite", **kw)
+    (summary,) = Study.prepare(request, reg).run().summaries
     return summary, _rows(tmp_path / f"{name}.sqlite")
 
 

@@ -10,7 +10,8 @@ import pytest
 from lwbench import Dataset, Frame, Param, RepresentationCodec, get_sensor, hookimpl
 from lwbench.leaderboard import build_leaderboard
 from lwbench.registry import new_registry
-from lwbench.run import DatasetSpec, Runner, RunPlan, expand_codec_configs
+from lwbench.run import DatasetSpec, RunPlan, expand_codec_configs
+from lwbench.run.runner import Runner  # the internal under test
 from lwbench.store import ResultStore
 
 CALLS: list[int] = []

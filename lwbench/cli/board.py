@@ -168,19 +168,11 @@ def report(
         from lwbench.run.config import read_run_file
 
         from .output import progress
-        from .running import RunProgress
+        from .running import RunConsole
 
         request = read_run_file(config).with_options(store=store)
-        events: dict = {}  # one RunProgress per runner (a study has one per dataset x seed)
-
-        def on_progress(runner, event) -> None:
-            # Made once per runner: a RunProgress opens a phase, so one per event flooded stderr.
-            if id(runner) not in events:
-                events[id(runner)] = RunProgress(shown, runner)
-            events[id(runner)](event)
-
         with progress() as shown:
-            outcome = Study.prepare(request, reg).run(on_progress=on_progress)
+            outcome = Study.prepare(request, reg).run(on_event=RunConsole(shown))
         done = [(s.evaluated, s.skipped, s.failed) for s in outcome.summaries]
         console.print(f"{escape(str(config))}: evaluated {sum(d[0] for d in done)}, cached {sum(d[1] for d in done)}, "
                       f"{sum(d[2] for d in done)} failure(s) -> {escape(str(request.store_path))}")

@@ -3,13 +3,12 @@ the :class:`~lwbench.run.Study`, print the board of what it asked for."""
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
-from lwbench.errors import MissingDependencyError, ParameterError
+from lwbench.errors import ParameterError
 
 from .app import app, registry
 from .options import (
@@ -100,52 +99,22 @@ def run(
             reg, dataset=dataset, dataset_params=words(dataset_param), codecs=words(codec), params=words(param),
             metric_params=words(metric_param), seed=seed, frames=frames, sequence_metrics=not no_sequence_metrics,
             metrics=tuple(words(metric)), store=store, workers=workers, **options)
-    _refuse_conflicts(request)
     info = reg.metric_info()
     wanted = wanted_columns(columns, info)
     if sort is not None:
         check_metric_ids([sort], info, "--sort")  # before the evaluation, not after it
     study = Study.prepare(request, reg)
-    keys: set[str] = set()
-    with ResultStore(request.store_path) as results:
-        for runner in study.runners(results):
-            n_total = len(runner.frame_indices) * len(runner.configs)
-            console.print(
-                f"[bold]lwbench run[/]: {escape(runner.plan.dataset.label)} · {len(runner.frame_indices)} frame(s) · "
-                f"{len(runner.configs)} codec configuration(s) · store {escape(str(request.store_path))}"
-            )
-            if runner.sequence_skipped:
-                err_console.print(f"[yellow]note:[/] {escape(runner.sequence_skipped)}", highlight=False)
-            summary = _run_with_progress(runner)
-            console.print(
-                f"evaluated {summary.evaluated}, cached {summary.skipped} of {n_total}; "
-                f"{summary.failed} failure(s); {summary.sequence_rows} sequence row(s)"
-            )
-            for f in summary.failures[:10]:
-                err_console.print(f"[red]failed:[/] {escape(f)}", highlight=False)
-            if summary.interrupted:
-                err_console.print("[yellow]interrupted:[/] finished rows are stored; "
-                                  "run the same command again to resume")
-                raise typer.Exit(130)
-            keys |= runner.keys()
+    with ResultStore(request.store_path) as results, progress() as shown:
+        outcome = study.run(results, RunConsole(shown, request.store_path))
+        if outcome.interrupted:
+            err_console.print("[yellow]interrupted:[/] finished rows are stored; run the same command again to resume")
+            raise typer.Exit(130)
         sort = sort or board_sort(info)
         board = {} if min_coverage is None else {"min_coverage": min_coverage}
-        entries = build_leaderboard(results, sort=sort, info=info, keys=keys, **board)
-        if len(study.plans) == 1:
-            console.print(f"dataset: {escape(study.plans[0].dataset.label)}")
-        print_board(entries, sort, wanted, info)
-
-
-def _refuse_conflicts(request) -> None:
-    """Options that contradict each other are refused, not resolved behind the user's back (the
-    runner would isolate an --in-process run with --workers 2; --address alone would be ignored)."""
-    if not request.isolate and request.workers > 1:
-        raise ParameterError(f"--in-process evaluates in this process, one at a time: it cannot take --workers "
-                             f"{request.workers} (leave out one of them)")
-    if request.address is not None and request.executor != "ray":
-        raise ParameterError(f"--address {request.address} names a Ray cluster: it needs --executor ray")
-    if request.executor == "ray" and importlib.util.find_spec("ray") is None:  # before any work starts
-        raise MissingDependencyError("--executor ray needs Ray, which is not installed: pip install 'lwbench[ray]'")
+        entries = build_leaderboard(results, sort=sort, info=info, keys=outcome.keys, **board)
+    if len(study.plans) == 1:
+        console.print(f"dataset: {escape(study.plans[0].dataset.label)}")
+    print_board(entries, sort, wanted, info)
 
 
 def board_sort(info) -> str:
@@ -155,19 +124,49 @@ def board_sort(info) -> str:
     return headline_metric(info)
 
 
-def _run_with_progress(runner):
-    with progress() as shown:
-        return runner.run(RunProgress(shown, runner))
+class RunConsole:
+    """A study's events on the terminal: each plan announced, its phases as progress bars
+    (:class:`RunProgress`), its counts and first failures when it ends."""
+
+    def __init__(self, shown, store: Path | None = None) -> None:
+        self.shown, self.store = shown, store
+        self.phases: RunProgress | None = None
+        self.total = 0
+
+    def __call__(self, event) -> None:
+        from lwbench.run import PlanFinished, PlanStarted
+
+        if isinstance(event, PlanStarted):
+            if self.store is not None:
+                console.print(
+                    f"[bold]lwbench run[/]: {escape(event.plan.dataset.label)} · {event.frames} frame(s) · "
+                    f"{event.configs} codec configuration(s) · store {escape(str(self.store))}")
+            if event.sequence_skipped:
+                err_console.print(f"[yellow]note:[/] {escape(event.sequence_skipped)}", highlight=False)
+            self.total = event.frames * event.configs
+            self.phases = RunProgress(self.shown, event.has_sequence_stage)
+        elif isinstance(event, PlanFinished):
+            if self.phases is not None:
+                self.phases.close()
+            s = event.summary
+            if self.store is not None:
+                console.print(
+                    f"evaluated {s.evaluated}, cached {s.skipped} of {self.total}; "
+                    f"{s.failed} failure(s); {s.sequence_rows} sequence row(s)")
+                for f in s.failures[:10]:
+                    err_console.print(f"[red]failed:[/] {escape(f)}", highlight=False)
+        elif self.phases is not None:
+            self.phases(event)
 
 
 class RunProgress:
-    """A runner's events as phases: the frames (encode, decode and frame metrics of every codec;
-    a simulated dataset's scans are simulated here too, frame by frame), then the sequence
+    """A plan's progress events as phases: the frames (encode, decode and frame metrics of every
+    codec; a simulated dataset's scans are simulated here too, frame by frame), then the sequence
     metrics. The frames phase is open from the start, so that a long first frame (a simulation,
     a worker starting) is already reported."""
 
-    def __init__(self, shown, runner) -> None:
-        self.shown, self.runner = shown, runner
+    def __init__(self, shown, has_sequence_stage: bool) -> None:
+        self.shown, self.has_sequence_stage = shown, has_sequence_stage
         self.frames = shown.phase("frames (encode, decode, frame metrics)", announce=False)
         self.sequence = None
 
@@ -176,7 +175,7 @@ class RunProgress:
         if event.phase == "frames":
             self.frames.update(event.done, total=event.total, what=f"last: {row.codec} frame {row.frame}",
                                part=row.codec)
-            if event.done >= event.total and getattr(self.runner, "sequence", None) is not None:
+            if event.done >= event.total and self.has_sequence_stage:
                 self._sequence_phase()
             return
         phase = self._sequence_phase()
@@ -190,3 +189,7 @@ class RunProgress:
             self.frames.finish()
             self.sequence = self.shown.phase("sequence metrics")
         return self.sequence
+
+    def close(self) -> None:
+        """The plan is over: its open phase ends (a later plan opens its own)."""
+        (self.sequence or self.frames).finish()

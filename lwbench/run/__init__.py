@@ -5,10 +5,11 @@
 3. :mod:`.record` -- results become rows with keys and provenance, decoded clouds artifacts;
 4. :mod:`.sequence` -- sequence metrics over a configuration's recorded frames;
 
-with :mod:`.execute` (where evaluations run) and :mod:`.runner` (the four in order); a
-:class:`~.request.RunRequest` (what the command line, a run file -- :mod:`.config` -- or a gate
-asks for) becomes plans and a :class:`~.request.Study` in :mod:`.request`. The
-leaderboard (:mod:`lwbench.leaderboard`) reads what they stored.
+with :mod:`.execute` (where evaluations run) and :mod:`.runner` (the four in order, one plan;
+internal). A :class:`~.request.RunRequest` (what the command line, a run file -- :mod:`.config` --
+or a gate asks for) becomes plans and a :class:`~.request.Study` in :mod:`.request`, whose
+:meth:`~.request.Study.run` is the one entry point every front end uses. The leaderboard
+(:mod:`lwbench.leaderboard`) reads what they stored.
 """
 
 from .evaluate import Evaluator, FrameResult
@@ -28,15 +29,27 @@ from .plan import (
     resolve_dataset,
 )
 from .record import Provenance, RowFactory
-from .request import DEFAULT_STORE, DatasetRequest, RunRequest, Study, StudyOutcome
-from .runner import Progress, Runner, RunSummary
+from .request import (
+    DEFAULT_STORE,
+    DatasetRequest,
+    PlanFinished,
+    PlanStarted,
+    RunRequest,
+    Study,
+    StudyEvent,
+    StudyOutcome,
+)
+from .runner import Progress, RunSummary
 from .sequence import SequenceStage
 
 __all__ = [
     "DEFAULT_STORE",
     "DatasetRequest",
     "RunRequest",
+    "PlanFinished",
+    "PlanStarted",
     "Study",
+    "StudyEvent",
     "StudyOutcome",
     "CodecConfig",
     "DEFAULT_TIMEOUT_S",
@@ -51,7 +64,6 @@ __all__ = [
     "RowFactory",
     "RunPlan",
     "RunSummary",
-    "Runner",
     "SequenceStage",
     "Worker",
     "config_label",

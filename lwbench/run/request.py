@@ -10,13 +10,14 @@ validates everything against the installed plugins.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator, Mapping, Sequence
+import importlib.util
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 from lwbench.dataset import Dataset
-from lwbench.errors import ParameterError
+from lwbench.errors import MissingDependencyError, ParameterError
 from lwbench.registry import Registry
 from lwbench.store import ResultStore
 
@@ -24,7 +25,8 @@ from .execute import DEFAULT_TIMEOUT_S
 from .plan import Grids, RunPlan, parse_assignments, parse_metric_params, parse_sweeps, plan_run, preflight
 from .runner import Progress, Runner, RunSummary
 
-__all__ = ["DEFAULT_STORE", "DatasetRequest", "RunRequest", "Study", "StudyOutcome"]
+__all__ = ["DEFAULT_STORE", "DatasetRequest", "PlanFinished", "PlanStarted", "RunRequest", "Study", "StudyEvent",
+           "StudyOutcome"]
 
 #: Where results go when neither the command line nor a run file says.
 DEFAULT_STORE = Path("lwbench-results/results.sqlite")
@@ -65,12 +67,26 @@ class RunRequest:
     address: str | None = None
 
     def __post_init__(self) -> None:
+        """Every refusal of a contradictory or impossible request lives here, so the command line,
+        a run file and a gate refuse the same things with the same words -- options that contradict
+        each other are refused, not resolved behind the user's back."""
         if self.executor not in ("local", "ray"):
             raise ParameterError(f"--executor must be local or ray, got {self.executor!r}")
         if not self.datasets or not self.seeds:
             raise ParameterError("a run needs at least one dataset and one seed")
         if self.workers < 1:
             raise ParameterError(f"--workers must be at least 1, got {self.workers}")
+        if not self.isolate and self.workers > 1:
+            raise ParameterError(f"--in-process evaluates in this process, one at a time: it cannot take --workers "
+                                 f"{self.workers} (leave out one of them)")
+        if self.address is not None and self.executor != "ray":
+            raise ParameterError(f"--address {self.address} names a Ray cluster: it needs --executor ray")
+
+    def check_installed(self) -> None:
+        """What the request needs from this machine, before any work starts (not in
+        ``__post_init__``: a request can be built and inspected where Ray is not installed)."""
+        if self.executor == "ray" and importlib.util.find_spec("ray") is None:
+            raise MissingDependencyError("--executor ray needs Ray, which is not installed: pip install 'lwbench[ray]'")
 
     @classmethod
     def from_words(
@@ -139,9 +155,39 @@ class StudyOutcome:
         return any(s.interrupted for s in self.summaries)
 
 
+@dataclass(frozen=True)
+class PlanStarted:
+    """A plan (one dataset and seed) is about to run: what a front end announces."""
+
+    index: int  # of the study's plans
+    plan: RunPlan
+    frames: int  # frames this plan evaluates
+    configs: int  # codec configurations
+    has_sequence_stage: bool
+    sequence_skipped: str  # why asked-for sequence metrics will not run ("" when they will or were not asked)
+
+
+@dataclass(frozen=True)
+class PlanFinished:
+    """A plan has run (or was interrupted: ``summary.interrupted``)."""
+
+    index: int
+    plan: RunPlan
+    summary: RunSummary
+
+
+#: What :meth:`Study.run` reports: a plan starts, a row is stored (or a sequence task moves), a plan ends.
+StudyEvent = PlanStarted | Progress | PlanFinished
+
+
 @dataclass
 class Study:
-    """A request planned and checked: built by :meth:`prepare` before anything is written."""
+    """A request planned and checked: built by :meth:`prepare` before anything is written.
+
+    :meth:`run` is the one way anything in lwbench evaluates codecs -- ``lwbench run``, run files,
+    ``lwbench report --config`` and the quality gates all call it -- so a refusal, a preflight
+    check or a resume rule holds for every front end at once.
+    """
 
     request: RunRequest
     registry: Registry
@@ -152,30 +198,33 @@ class Study:
     def prepare(cls, request: RunRequest, registry: Registry) -> Study:
         """Plan the request and check everything that can be checked before the store is opened
         (a bad dataset, scan, sensor file or device is an error now, with nothing written)."""
+        request.check_installed()
         plans = request.plans(registry)
-        return cls(request, registry, plans, [preflight(registry, plan) for plan in plans])
-
-    def runners(self, results: ResultStore) -> Iterator[Runner]:
-        """One :class:`Runner` per plan, writing into ``results`` (the caller runs each)."""
-        r = self.request
-        for plan, dataset in zip(self.plans, self.datasets, strict=True):
-            yield Runner(results, plan, registry=self.registry, workers=r.workers, retry_failed=r.retry_failed,
-                         force=r.force, isolate=r.isolate, timeout_s=r.timeout_s, memory_mb=r.memory_mb,
-                         executor=r.executor, address=r.address, dataset=dataset)
+        local = request.executor != "ray"  # a cluster's devices are the cluster's to check
+        return cls(request, registry, plans, [preflight(registry, plan, local_devices=local) for plan in plans])
 
     def run(self, results: ResultStore | None = None,
-            on_progress: Callable[[Runner, Progress], None] | None = None) -> StudyOutcome:
-        """Every plan into ``results`` (default: the request's store, opened here); stops after a
-        plan that was interrupted (its finished rows are stored; the same study resumes)."""
+            on_event: Callable[[StudyEvent], None] | None = None) -> StudyOutcome:
+        """Every plan into ``results`` (default: the request's store, opened here), in order;
+        ``on_event`` hears each :data:`StudyEvent`. Stops after a plan that was interrupted (its
+        finished rows are stored; the same study resumes)."""
         if results is None:
             with ResultStore(self.request.store_path) as opened:
-                return self.run(opened, on_progress)
+                return self.run(opened, on_event)
+        r = self.request
         outcome = StudyOutcome()
-        for runner in self.runners(results):
-            report = None if on_progress is None else (lambda event, _r=runner: on_progress(_r, event))
-            summary = runner.run(report)
+        for index, (plan, dataset) in enumerate(zip(self.plans, self.datasets, strict=True)):
+            runner = Runner(results, plan, registry=self.registry, workers=r.workers, retry_failed=r.retry_failed,
+                            force=r.force, isolate=r.isolate, timeout_s=r.timeout_s, memory_mb=r.memory_mb,
+                            executor=r.executor, address=r.address, dataset=dataset)
+            if on_event is not None:
+                on_event(PlanStarted(index, plan, len(runner.frame_indices), len(runner.configs),
+                                     runner.sequence is not None, runner.sequence_skipped))
+            summary = runner.run(on_event)
             outcome.summaries.append(summary)
             outcome.keys |= runner.keys()
+            if on_event is not None:
+                on_event(PlanFinished(index, plan, summary))
             if summary.interrupted:
                 break
         return outcome

@@ -17,7 +17,8 @@ from lwbench_metrics import GeometryMetric, RangeMetric, SizeMetric
 from lwbench import CodecKind, Evaluation
 from lwbench.loaders import KittiDataset
 from lwbench.registry import get_registry
-from lwbench.run import DatasetSpec, Runner, RunPlan, expand_codec_configs
+from lwbench.run import DatasetSpec, RunPlan, expand_codec_configs
+from lwbench.run.runner import Runner  # the internal under test
 from lwbench.store import ResultStore
 
 pytestmark = pytest.mark.benchmark
