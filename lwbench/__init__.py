@@ -8,6 +8,7 @@ from lwbench.catalog import SensorCatalog
 from lwbench.codec import BUDGET_PARAMS, Codec, CodecKind, RepresentationCodec, SelectionCodec, top_k
 from lwbench.dataset import Dataset
 from lwbench.deps import import_open3d
+from lwbench.derive import Derivation, derive_sensor, outside_range_window, sensor_mismatch
 from lwbench.device import DEVICE_PARAM, resolve_device
 from lwbench.errors import (
     DataFormatError,
@@ -76,18 +77,7 @@ from lwbench.parallel import thread_budget
 from lwbench.params import Param
 from lwbench.payload import Payload
 from lwbench.points import POINT_ENCODINGS, pack_points, unpack_points
-from lwbench.resolve import codec_class, open_dataset
-from lwbench.selector_diagnostics import (
-    LABEL_GROUND,
-    LABEL_HIGH,
-    LABEL_LOW,
-    LabelFolder,
-    noisy_classes,
-    roc_auc,
-    select_by_class,
-    select_by_score,
-    top_k_precision,
-)
+from lwbench.resolve import codec_class, make_codec, open_dataset, sequence_metric
 from lwbench.sensor import SENSOR_PRESETS, RangeImage, SensorModel, get_sensor, register_sensor
 from lwbench.tiles import TILE_M, SpillingTiles, split_by_tile, tiles_at, tiles_near
 from lwbench.version import __version__
@@ -101,6 +91,8 @@ __all__ = [
     "checked_cloud",
     "Codec",
     "codec_class",
+    "make_codec",
+    "sequence_metric",
     "CodecKind",
     "compare_occupancy",
     "coordinate_bound",
@@ -108,6 +100,8 @@ __all__ = [
     "Dataset",
     "DataWarning",
     "DecodeError",
+    "Derivation",
+    "derive_sensor",
     "DEVICE_PARAM",
     "Evaluation",
     "Frame",
@@ -148,6 +142,7 @@ __all__ = [
     "occupancy_tiles",
     "occupied_voxels",
     "open_dataset",
+    "outside_range_window",
     "pack_points",
     "Param",
     "ParameterError",
@@ -165,6 +160,7 @@ __all__ = [
     "SelectionCodec",
     "SelectionError",
     "SENSOR_FILE",
+    "sensor_mismatch",
     "SENSOR_PRESETS",
     "SensorCatalog",
     "SensorModel",
@@ -178,14 +174,5 @@ __all__ = [
     "WorkerError",
     "write_kitti_sequence",
     "zstd_decompress",
-    "LABEL_GROUND",
-    "LABEL_HIGH",
-    "LABEL_LOW",
-    "LabelFolder",
-    "noisy_classes",
-    "roc_auc",
-    "select_by_class",
-    "select_by_score",
-    "top_k_precision",
     "__version__",
 ]

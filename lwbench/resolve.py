@@ -17,8 +17,10 @@ from typing import Any
 
 from lwbench.codec import Codec
 from lwbench.dataset import Dataset
+from lwbench.errors import PluginError
+from lwbench.metric import SequenceMetric
 
-__all__ = ["codec_class", "open_dataset"]
+__all__ = ["codec_class", "make_codec", "open_dataset", "sequence_metric"]
 
 
 def open_dataset(
@@ -43,3 +45,26 @@ def codec_class(name: str) -> type[Codec]:
     from lwbench.registry import get_registry
 
     return get_registry().codec(name)
+
+
+def make_codec(name: str, params: Mapping[str, Any] | Sequence[str] = (), *, seed: int = 0) -> Codec:
+    """The codec ``lwbench run --codec NAME --param NAME.KEY=VALUE`` would build: each value
+    parsed and checked against the codec's declared parameters, ``seed`` given to a codec that
+    declares one (a diagnostics command builds the same configuration a run scores)."""
+    from lwbench.run.plan import expand_codec_configs, parse_assignments
+
+    cls = codec_class(name)
+    given = dict(params) if isinstance(params, Mapping) else parse_assignments(list(params), "--param")
+    (config,) = expand_codec_configs(cls, {k: [v] for k, v in given.items()}, seed)
+    return cls(**config.params)
+
+
+def sequence_metric(name: str, params: Mapping[str, Any] | None = None) -> SequenceMetric:
+    """The installed sequence metric of that name, configured with ``params`` (what
+    ``--metric-param NAME.KEY=VALUE`` sets); a clear error when it is not installed."""
+    from lwbench.registry import get_registry
+
+    metrics = get_registry().sequence_metrics
+    if name not in metrics:
+        raise PluginError(f"no sequence metric {name!r} is installed (installed: {', '.join(sorted(metrics))})")
+    return metrics[name](**dict(params or {}))

@@ -212,7 +212,7 @@ def test_the_oracle_keeps_high_priority_then_ground(tmp_path, street):
 
 
 def test_the_noisy_oracle_codec_is_the_curve_s_selection(tmp_path, street):
-    from lwbench.selector_diagnostics import kept_precision, noisy_classes, select_by_class
+    from lwbench_plugins.poconet.diagnostics import kept_precision, noisy_classes, select_by_class
 
     ds = street
     labels, counts = label_dataset(ds)

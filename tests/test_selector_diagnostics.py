@@ -1,5 +1,6 @@
-"""lwbench.selector_diagnostics and ``lwbench diagnose``: ranking quality, the noisy oracle's
-corruption, the spatially balanced ranking and the command on a simulated two-drive street."""
+"""PocoNet's selector diagnostics (lwbench_plugins.poconet.diagnostics) and ``lwbench diagnose``:
+ranking quality, the noisy oracle's corruption, the spatially balanced ranking and the command on
+a simulated two-drive street."""
 
 from __future__ import annotations
 
@@ -7,10 +8,7 @@ import json
 
 import numpy as np
 import pytest
-from typer.testing import CliRunner
-
-from lwbench import DataFormatError, Frame, ParameterError, SequenceMetric, get_sensor
-from lwbench.selector_diagnostics import (
+from lwbench_plugins.poconet.diagnostics import (
     GROUND,
     HIGH,
     LOW,
@@ -26,6 +24,9 @@ from lwbench.selector_diagnostics import (
     summarize,
     top_k_precision,
 )
+from typer.testing import CliRunner
+
+from lwbench import DataFormatError, Frame, ParameterError, SequenceMetric, get_sensor
 
 
 def test_auc_is_the_chance_a_positive_outscores_a_negative():

@@ -27,6 +27,7 @@ def lwbench_codecs():
 
 @hookimpl
 def lwbench_register_commands(cli) -> None:
-    from .commands import register
+    from . import commands, diagnose
 
-    register(cli)
+    commands.register(cli)
+    diagnose.register(cli)

@@ -4,7 +4,7 @@
 it (``ground_share``) from the points it predicts are ground -- the paper keeps "most points
 marked as high priority and some ground points" -- and the rest from the other points ranked by
 the network's probability of high priority, with spatial balance
-(:func:`lwbench.selector_diagnostics.balanced_order`: round-robin over ``cell`` x ``cell`` m
+(:func:`.diagnostics.balanced_order`: round-robin over ``cell`` x ``cell`` m
 cells, the best-scored point of each cell first). Version 1 took the argmax class and a random
 order inside it: the kept points were only as precise as the argmax (0.26-0.29 on held-out
 scans), and the probability, ranked without balance, keeps one patch (an early checkpoint's top
@@ -21,10 +21,10 @@ neighbour, as RandLA-Net does at test time: the first layer's 16-neighbour encod
 and a 120k-point KITTI scan holds ~4x the points its geometry needs for a priority class.
 
 ``oracle`` reads labels written by ``lwbench label`` (``oracle.labels=DIR``) and keeps them by
-:func:`lwbench.selector_diagnostics.select_by_class` (the ground quota, high priority, ground,
+:func:`.diagnostics.select_by_class` (the ground quota, high priority, ground,
 the rest; random inside a class). ``oracle.precision=p`` is the *noisy oracle*: the same rule on
 labels whose high-priority set is corrupted to precision ``p``
-(:func:`lwbench.selector_diagnostics.noisy_classes`), the curve ``lwbench diagnose`` draws.
+(:func:`.diagnostics.noisy_classes`), the curve ``lwbench diagnose`` draws.
 """
 
 from __future__ import annotations
@@ -40,16 +40,14 @@ from lwbench import (
     DEVICE_PARAM,
     DataFormatError,
     Frame,
-    LabelFolder,
     Param,
     ParameterError,
     SelectionCodec,
-    noisy_classes,
     resolve_device,
-    select_by_class,
-    select_by_score,
 )
-from lwbench import LABEL_HIGH as HIGH
+
+from .diagnostics import LABEL_HIGH as HIGH
+from .diagnostics import LabelFolder, noisy_classes, select_by_class, select_by_score
 
 __all__ = [
     "PocoNetSelector",

@@ -41,11 +41,13 @@ from pathlib import Path
 
 import numpy as np
 
-from lwbench import LABEL_GROUND as GROUND
-from lwbench import LABEL_HIGH as HIGH
-from lwbench import LABEL_LOW as LOW
-from lwbench import DataFormatError, Dataset, Frame, LabelFolder, ParameterError
+from lwbench import DataFormatError, Dataset, Frame, ParameterError
 from lwbench.geometry import transform, voxel_keys
+
+from .diagnostics import LABEL_GROUND as GROUND
+from .diagnostics import LABEL_HIGH as HIGH
+from .diagnostics import LABEL_LOW as LOW
+from .diagnostics import LabelFolder
 
 __all__ = [
     "LOW",
@@ -240,7 +242,7 @@ class LabelStore:
 
     def read(self, index: int, n_points: int) -> tuple[np.ndarray, np.ndarray]:
         """(labels, counts) of frame ``index``, checked against the scan's point count (the
-        classes through :class:`lwbench.selector_diagnostics.LabelFolder`, the same reader
+        classes through :class:`.diagnostics.LabelFolder`, the same reader
         ``lwbench diagnose`` uses)."""
         if self._folder is None:
             self._folder = LabelFolder(self.root)

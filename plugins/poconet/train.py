@@ -45,12 +45,13 @@ from pathlib import Path
 
 import numpy as np
 
-from lwbench import LABEL_GROUND as GROUND
-from lwbench import LABEL_HIGH as HIGH
-from lwbench import Dataset, ParameterError, open_dataset, roc_auc, top_k_precision
+from lwbench import Dataset, ParameterError, open_dataset
 
 from .codec import CHECKPOINT_FORMAT
 from .data import crop, features, prepare, to_torch
+from .diagnostics import LABEL_GROUND as GROUND
+from .diagnostics import LABEL_HIGH as HIGH
+from .diagnostics import roc_auc, top_k_precision
 from .labels import CLASSES, COUNTS_FROM, LabelSettings, LabelStore, label_dataset
 from .network import NetConfig, PocoNet, siamese_loss, variance_loss
 

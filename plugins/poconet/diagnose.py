@@ -1,5 +1,5 @@
-"""``lwbench diagnose``: the learned-selector diagnostics of :mod:`lwbench.selector_diagnostics`
-on a dataset (a built-in plugin: registered through ``lwbench_register_commands``).
+"""``lwbench diagnose``: the learned-selector diagnostics of :mod:`.diagnostics` on a dataset
+(registered with PocoNet's other commands through ``lwbench_register_commands``).
 
     lwbench diagnose poconet --param ratio=0.0833 --dataset sim --dataset-param scene=urban \\
         --dataset-param traversals=2 --labels mapping=DIR1 --labels all-drives=DIR2 --curve
@@ -20,36 +20,33 @@ from typing import Annotated, Any
 import numpy as np
 import typer
 
-from lwbench.hookspecs import hookimpl
+from lwbench import ParameterError, SelectionCodec, SequenceEvaluation, make_codec, open_dataset, sequence_metric
 
-__all__ = ["diagnose_selector", "lwbench_register_commands"]
+from .diagnostics import LabelFolder, crossing, frame_diagnostics, noisy_oracle_curve, summarize
+
+__all__ = ["diagnose_selector", "register"]
 
 DEFAULT_PRECISIONS = (0.2, 0.3, 0.4, 0.5, 0.6, 0.8, 1.0)
 
 
-def _metric(reg, name: str):
-    for m in reg.sequence_metric_instances():
-        if m.name == name:
-            return m
-    from lwbench.errors import PluginError
-
-    raise PluginError(f"diagnose: no sequence metric {name!r} is installed (the noisy-oracle curve needs it)")
-
-
-def _codec(reg, name: str, params: dict[str, str], seed: int):
-    from lwbench.codec import SelectionCodec
-    from lwbench.errors import ParameterError
-    from lwbench.run import expand_codec_configs
-
-    cls = reg.codec(name)
-    if not issubclass(cls, SelectionCodec):
+def _selector(name: str, params: dict[str, Any], seed: int) -> SelectionCodec:
+    codec = make_codec(name, params, seed=seed)
+    if not isinstance(codec, SelectionCodec):
         raise ParameterError(f"diagnose: {name} is not a selection codec")
-    cfg = expand_codec_configs(cls, {k: [v] for k, v in params.items()}, seed)[0]
-    return cls(**cfg.params)
+    return codec
+
+
+def _assignments(words: list[str], option: str) -> dict[str, str]:
+    out = {}
+    for word in words:
+        key, sep, value = word.partition("=")
+        if not sep or not key:
+            raise ParameterError(f"{option} {word!r}: expected NAME=VALUE")
+        out[key] = value
+    return out
 
 
 def diagnose_selector(
-    reg,
     dataset,
     codec,
     labels: dict[str, Any],
@@ -62,12 +59,9 @@ def diagnose_selector(
     cell: float | None = None,
 ) -> dict[str, Any]:
     """The diagnostics as a dict (what ``--json`` writes): per label definition the summary of
-    :func:`~lwbench.selector_diagnostics.summarize`; with ``curve_labels``, the noisy-oracle
+    :func:`~.diagnostics.summarize`; with ``curve_labels``, the noisy-oracle
     curve of each rule and the selector's and random's localization values on the same frames.
     ``cell`` (the ``"score"`` rule's balance) defaults to the codec's own ``cell``, else 3 m."""
-    from lwbench.metric import SequenceEvaluation
-    from lwbench.selector_diagnostics import crossing, frame_diagnostics, noisy_oracle_curve, summarize
-
     idx = list(range(len(dataset))) if frames is None else list(frames)
     per: dict[str, list] = {name: [] for name in labels}
     decoded = []
@@ -88,11 +82,11 @@ def diagnose_selector(
     if curve_labels is None:
         return out
     folder = labels[curve_labels]
-    metric = _metric(reg, "localization")
+    metric = sequence_metric("localization")
     cache: dict = {}
     own = metric.compute(SequenceEvaluation(dataset, idx, decoded, codec.name, codec.config, seed, _cache=cache))
     random_params = {k: codec.config[k] for k in ("ratio", "points") if codec.config.get(k) is not None}
-    rnd = _codec(reg, "random", {k: str(v) for k, v in random_params.items()}, seed)
+    rnd = _selector("random", random_params, seed)
     rnd_decoded = [np.asarray(dataset[i].points[rnd.select(dataset[i])], dtype=np.float32) for i in idx]
     ref = metric.compute(SequenceEvaluation(dataset, idx, rnd_decoded, "random", rnd.config, seed, _cache=cache))
     base = out["labels"][curve_labels]["base_rate"]
@@ -168,8 +162,7 @@ def _print(result: dict[str, Any]) -> None:
         )
 
 
-@hookimpl
-def lwbench_register_commands(cli) -> None:
+def register(cli) -> None:
     """Add ``lwbench diagnose``."""
 
     @cli.command("diagnose")
@@ -205,23 +198,16 @@ def lwbench_register_commands(cli) -> None:
     ) -> None:
         """Diagnostics of a learned selector: AUC and precision against each label definition,
         and the noisy-oracle curve (what precision beats random)."""
-        from lwbench.errors import ParameterError
-        from lwbench.registry import get_registry
-        from lwbench.run import parse_assignments, resolve_dataset
-        from lwbench.selector_diagnostics import LabelFolder
-
-        reg = get_registry()
-        ds = resolve_dataset(reg, dataset, parse_assignments(dataset_param, "--dataset-param"), seed).build(reg)
-        folders = {name: LabelFolder(path) for name, path in parse_assignments(labels, "--labels").items()}
+        ds = open_dataset(dataset, list(dataset_param), seed=seed)
+        folders = {name: LabelFolder(path) for name, path in _assignments(labels, "--labels").items()}
         if not folders:
             raise ParameterError("diagnose: give at least one --labels NAME=DIR")
         chosen = curve_labels or next(iter(folders))
         if chosen not in folders:
             raise ParameterError(f"diagnose: --curve-labels {chosen!r} is none of {sorted(folders)}")
-        sel = _codec(reg, codec, parse_assignments(param, "--param"), seed)
+        sel = _selector(codec, _assignments(param, "--param"), seed)
         idx = list(range(min(len(ds), frames) if frames else len(ds)))
         result = diagnose_selector(
-            reg,
             ds,
             sel,
             folders,

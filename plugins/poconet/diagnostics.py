@@ -25,7 +25,8 @@ scores into a budget may waste them. These functions separate the three.
 - :func:`balanced_order`: a ranking by score with spatial balance (round-robin over ground-plane
   cells, best score first in each), so that a smooth score does not spend the budget on one patch.
 
-``lwbench diagnose`` (:mod:`lwbench.selector_diagnostics_command`) runs all of it on a dataset.
+``lwbench diagnose`` (:mod:`.diagnose`) runs all of it on a dataset. This is PocoNet's research code:
+it lives in the plugin, on the public API, not in lwbench's core.
 """
 
 from __future__ import annotations
@@ -38,10 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from lwbench.dataset import Dataset
-from lwbench.errors import DataFormatError, ParameterError
-from lwbench.frame import Frame
-from lwbench.metric import SequenceEvaluation, SequenceMetric
+from lwbench import DataFormatError, Dataset, Frame, ParameterError, SequenceEvaluation, SequenceMetric
 
 __all__ = [
     "LABEL_GROUND",
