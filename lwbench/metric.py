@@ -17,7 +17,7 @@ recomputes instead of being served from the cache, and rows scored two ways are 
 from __future__ import annotations
 
 import abc
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
@@ -40,6 +40,8 @@ __all__ = [
     "SequenceEvaluation",
     "SequenceMetric",
     "SequenceStep",
+    "QUANTITIES",
+    "ids_by_quantity",
 ]
 
 MetricValues = dict[str, float | None]
@@ -47,6 +49,17 @@ LOWER, HIGHER = "lower", "higher"
 #: What an id is to the report: a ``rate`` axis, a ``distortion`` plotted against the rate, a
 #: ``runtime`` bar; ``""`` for everything else.
 METRIC_ROLES = ("", "rate", "distortion", "runtime")
+#: What an id measures, where core relies on it -- the vocabulary through which core finds an id
+#: without writing its name (docs/design.md: core knows no metric by name). At most one installed
+#: id declares each quantity; a missing one only switches off what needs it (the noise floor).
+QUANTITIES = {
+    "range_error_rms": "RMS range error over a scan's returns, m: the distortion the noise floor is drawn against",
+    "bits_per_point": "coded bits per input point: the rate of the noise floor",
+    "bytes_per_frame": "payload bytes per frame: the rate axis when none is named",
+    "input_points": "points in the original scan (a floor in bits per point as bytes per frame)",
+    "range_noise_sigma": "the range noise the scan's sensor model declares, m: an input of the noise floor",
+    "mask_bits_per_point": "bits per point of the scan's no-return mask: an input of the noise floor",
+}
 #: ``Guard.off_curves`` value: a flagged configuration is left off every rate-distortion curve.
 ALL_CURVES = "*"
 
@@ -92,6 +105,8 @@ class MetricId(str):
     - ``default``: a column of the default board; ``headline``: what a board is sorted by when
       no ``--sort`` is given (one id: the compression ratio);
     - ``role``: one of :data:`METRIC_ROLES` (what the HTML report draws it as);
+    - ``quantity``: one of :data:`QUANTITIES` or ``""`` -- what it measures, where core needs to
+      find it (the noise floor, ``lwbench rd``'s default axes) without knowing its name;
     - ``guard``: a :class:`Guard` -- what the id's value says about the whole configuration.
     """
 
@@ -100,24 +115,28 @@ class MetricId(str):
     default: bool
     headline: bool
     role: str
+    quantity: str
     guard: Guard | None
 
     def __new__(cls, name: str, unit: str = "", better: str = "", *, default: bool = False, headline: bool = False,
-                role: str = "", guard: Guard | None = None) -> MetricId:
+                role: str = "", quantity: str = "", guard: Guard | None = None) -> MetricId:
         if better not in (LOWER, HIGHER, ""):
             raise ValueError(f"metric id {name}: better must be 'lower', 'higher' or '', got {better!r}")
         if role not in METRIC_ROLES:
             raise ValueError(f"metric id {name}: role must be one of {METRIC_ROLES}, got {role!r}")
+        if quantity and quantity not in QUANTITIES:
+            raise ValueError(f"metric id {name}: quantity must be one of {sorted(QUANTITIES)} or '', got {quantity!r}")
         if guard is not None and not isinstance(guard, Guard):
             raise ValueError(f"metric id {name}: guard must be a lwbench.Guard")
         obj = super().__new__(cls, name)
         obj.unit, obj.better, obj.default = unit, better, default
-        obj.headline, obj.role, obj.guard = headline, role, guard
+        obj.headline, obj.role, obj.quantity, obj.guard = headline, role, quantity, guard
         return obj
 
     def __reduce__(self):  # pickles (worker processes) with its description
         return (MetricId, (str(self), self.unit, self.better),
-                {"default": self.default, "headline": self.headline, "role": self.role, "guard": self.guard})
+                {"default": self.default, "headline": self.headline, "role": self.role, "quantity": self.quantity,
+                 "guard": self.guard})
 
     def describe(self) -> dict:
         out = {"id": str(self), "unit": self.unit, "better": self.better, "default": self.default}
@@ -125,9 +144,22 @@ class MetricId(str):
             out["headline"] = True
         if self.role:
             out["role"] = self.role
+        if self.quantity:
+            out["quantity"] = self.quantity
         if self.guard is not None:
             out["guard"] = {k: v for k, v in self.guard.__dict__.items() if v not in (None, (), "")}
         return out
+
+
+def ids_by_quantity(info: Mapping[str, Any]) -> dict[str, str]:
+    """The installed id of each declared quantity (:data:`QUANTITIES`), from a board's metric
+    info (``Registry.metric_info()``); the first in board order when two declare one."""
+    out: dict[str, str] = {}
+    for i, declared in info.items():
+        quantity = getattr(declared, "quantity", "")
+        if quantity:
+            out.setdefault(quantity, str(i))
+    return out
 
 
 def as_metric_id(i: str) -> MetricId:

@@ -50,7 +50,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "GAUSSIAN_ENTROPY_BITS",
-    "FLOOR_IDS",
+    "FloorIds",
     "MaskBits",
     "ScanFloor",
     "draw_floor",
@@ -67,8 +67,6 @@ __all__ = [
 
 #: ``0.5 * log2(2*pi*e)``: the differential entropy of a unit Gaussian, in bits (2.0471).
 GAUSSIAN_ENTROPY_BITS = 0.5 * math.log2(2.0 * math.pi * math.e)
-#: The metric ids the ``floor`` metric stores (the floor's inputs, per frame).
-FLOOR_IDS = ("floor_sigma", "floor_mask_bpp")
 _SQRT12 = math.sqrt(12.0)
 
 
@@ -184,16 +182,42 @@ def scan_floor(frame: Frame) -> ScanFloor:
 
 
 # -- the floor of stored results (``lwbench rd``, ``lwbench report``) ------------------------
-def entry_floor(entry: Any) -> float | None:
-    """The floor (bits per point) at a board entry's mean ``range_rmsd``, from the mean floor
-    inputs its rows stored (the ``floor`` metric); ``None`` without them or at RMSD 0."""
-    return floor_bits_per_point(entry.value("range_rmsd"), entry.value("floor_sigma"), entry.value("floor_mask_bpp"))
+@dataclass(frozen=True)
+class FloorIds:
+    """The metric ids the floor of stored results reads, found by the quantity each declares
+    (:data:`lwbench.metric.QUANTITIES`), never by name: core knows no metric by name."""
+
+    distortion: str  # range_error_rms
+    bits_per_point: str
+    input_points: str
+    sigma: str  # range_noise_sigma
+    mask_bpp: str  # mask_bits_per_point
+
+    @classmethod
+    def from_info(cls, info: Mapping[str, Any]) -> FloorIds | None:
+        """From a board's metric info; ``None`` when an installed metric does not declare one of
+        the quantities (no floor is drawn, nothing else changes)."""
+        from lwbench.metric import ids_by_quantity
+
+        found = ids_by_quantity(info)
+        wanted = ("range_error_rms", "bits_per_point", "input_points", "range_noise_sigma", "mask_bits_per_point")
+        if not all(q in found for q in wanted):
+            return None
+        return cls(*(found[q] for q in wanted))
 
 
-def floor_lines(entries: Iterable[Any], shown: Mapping[tuple[str, str], Any] | None = None) -> list[str]:
+def entry_floor(entry: Any, ids: FloorIds) -> float | None:
+    """The floor (bits per point) at a board entry's mean range error, from the mean floor inputs
+    its rows stored (the metric declaring them); ``None`` without them or at a range error of 0."""
+    return floor_bits_per_point(entry.value(ids.distortion), entry.value(ids.sigma), entry.value(ids.mask_bpp))
+
+
+def floor_lines(entries: Iterable[Any], ids: FloorIds,
+                shown: Mapping[tuple[str, str], Any] | None = None) -> list[str]:
     """One ``floor`` line per dataset: the floor's bits per point at each configuration's range
-    RMSD and the configuration's distance to it (its bits per point less the floor). ``shown``:
+    error and the configuration's distance to it (its bits per point less the floor). ``shown``:
     the curves of ``lwbench rd`` (only their configurations are listed), else every entry."""
+    entries = list(entries)
     keep = None
     if shown is not None:
         keep = {(ds, p.label) for (ds, _), c in shown.items() for p in c.points}
@@ -201,10 +225,10 @@ def floor_lines(entries: Iterable[Any], shown: Mapping[tuple[str, str], Any] | N
     for e in entries:
         if keep is not None and (e.dataset, e.label) not in keep:
             continue
-        floor = entry_floor(e)
-        bpp = e.value("bits_per_point")
+        floor = entry_floor(e, ids)
+        bpp = e.value(ids.bits_per_point)
         if floor is None:
-            text = "exact (no finite floor)" if e.value("range_rmsd") == 0 else None
+            text = "exact (no finite floor)" if e.value(ids.distortion) == 0 else None
             if text is None:
                 continue
             by_ds.setdefault(e.dataset, []).append(f"{e.label} {text}")
@@ -217,45 +241,49 @@ def floor_lines(entries: Iterable[Any], shown: Mapping[tuple[str, str], Any] | N
         by_ds.setdefault(e.dataset, []).append(f"{e.label} {floor:.2f}{gap}")
     out = []
     for ds, items in by_ds.items():
-        sigma = next((e.value("floor_sigma") for e in entries if e.dataset == ds and e.value("floor_sigma")), None)
-        mask = next((e.value("floor_mask_bpp") for e in entries if e.dataset == ds and e.value("floor_sigma")), None)
-        head = f"floor on {ds} (bits/point at each range_rmsd, + the codec's distance to it"
+        sigma = next((e.value(ids.sigma) for e in entries if e.dataset == ds and e.value(ids.sigma)), None)
+        mask = next((e.value(ids.mask_bpp) for e in entries if e.dataset == ds and e.value(ids.sigma)), None)
+        head = f"floor on {ds} (bits/point at each {ids.distortion}, + the codec's distance to it"
         head += f"; sigma {sigma * 1000:.3g} mm, mask {mask:.3f} bit/point)" if sigma and mask is not None else ")"
         out.append(f"{head}: " + "; ".join(items))
     return out
 
 
-def print_floor(entries: list[Any], curves: Mapping[tuple[str, str], Any], say: Callable[[str], Any]) -> None:
-    """``lwbench rd``'s floor lines, given to ``say`` (the console's print)."""
-    for line in floor_lines(entries, curves):
-        say(line)
+def print_floor(entries: list[Any], curves: Mapping[tuple[str, str], Any] | None, info: Mapping[str, Any],
+                say: Callable[[str], Any]) -> None:
+    """``lwbench rd``'s floor lines, given to ``say`` (the console's print); none when the
+    installed metrics do not declare the floor's quantities."""
+    ids = FloorIds.from_info(info)
+    if ids is not None:
+        for line in floor_lines(entries, ids, curves):
+            say(line)
 
 
-def draw_floor(ax: Any, entries: list[Any], distortion: str, rate: str) -> bool:
-    """Draw the noise floor on an RD plot of ``distortion`` against ``rate`` (``bytes`` per frame
-    or ``bits_per_point``), labelled ``noise floor``: for ``range_rmsd`` the floor curve over the
-    plot's distortion range, for any other distortion each configuration's floor rate at its own
-    distortion (the rate its range accuracy needs at least), as unjoined markers. False if there is
-    nothing to draw."""
-    rows = [(e, entry_floor(e)) for e in entries if not e.flags]  # flagged ones are off the curves too
+def draw_floor(ax: Any, entries: list[Any], distortion: str, rate: str, ids: FloorIds) -> bool:
+    """Draw the noise floor on an RD plot of ``distortion`` against ``rate`` (bytes per frame or
+    ``ids.bits_per_point``), labelled ``noise floor``: for the range error the floor curve over
+    the plot's distortion range, for any other distortion each configuration's floor rate at its
+    own distortion (the rate its range accuracy needs at least), as unjoined markers. False if
+    there is nothing to draw."""
+    rows = [(e, entry_floor(e, ids)) for e in entries if not e.flags]  # flagged ones are off the curves too
     rows = [(e, f) for e, f in rows if f is not None and e.value(distortion) is not None]
     if not rows:
         return False
 
     def to_rate(bpp: float, e: Any) -> float:
-        return bpp if rate == "bits_per_point" else bpp * (e.value("points_in") or 0.0) / 8.0
+        return bpp if rate == ids.bits_per_point else bpp * (e.value(ids.input_points) or 0.0) / 8.0
 
-    if distortion == "range_rmsd":
+    if distortion == ids.distortion:
         # The floor curve over the configurations' distortions (beyond them it would stretch the
         # rate axis by decades: at a distortion far above the noise the floor is the mask alone).
-        sigma = float(np.mean([e.value("floor_sigma") for e, _ in rows]))
-        mask = float(np.mean([e.value("floor_mask_bpp") for e, _ in rows]))
-        points = float(np.mean([e.value("points_in") or 0.0 for e, _ in rows]))
+        sigma = float(np.mean([e.value(ids.sigma) for e, _ in rows]))
+        mask = float(np.mean([e.value(ids.mask_bpp) for e, _ in rows]))
+        points = float(np.mean([e.value(ids.input_points) or 0.0 for e, _ in rows]))
         d_all = [e.value(distortion) for e, _ in rows]
         d = np.geomspace(min(d_all) / 1.5, max(d_all) * 1.5, 60)
         bpp = np.array([floor_bits_per_point(x, sigma, mask) for x in d])
         keep = bpp > 0.01
-        x = bpp[keep] if rate == "bits_per_point" else bpp[keep] * points / 8.0
+        x = bpp[keep] if rate == ids.bits_per_point else bpp[keep] * points / 8.0
         ax.plot(x, d[keep], ls="--", lw=1.2, color="0.35", label="noise floor")
     else:
         # One point per configuration, not a line: the floor is defined at each configuration's own

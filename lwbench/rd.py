@@ -47,6 +47,7 @@ __all__ = [
     "bd_distortion",
     "bd_rate",
     "curves_from_entries",
+    "default_axes",
     "front_across",
     "left_out_flags",
     "pareto_front",
@@ -143,11 +144,27 @@ def left_out_flags(distortion: str, info: Mapping[str, MetricId] | None = None) 
     return out
 
 
+def default_axes(info: Mapping[str, MetricId]) -> tuple[str, str]:
+    """``lwbench rd``'s distortion and rate when none is named: the ids declaring the quantities
+    ``range_error_rms`` and ``bytes_per_frame``, else the first ``distortion`` and ``rate`` roles
+    in board order -- found by declaration, never by name."""
+    from lwbench.metric import ids_by_quantity
+
+    found = ids_by_quantity(info)
+    by_role = {role: next((str(i) for i, m in info.items() if getattr(m, "role", "") == role), None)
+               for role in ("distortion", "rate")}
+    distortion = found.get("range_error_rms") or by_role["distortion"]
+    rate = found.get("bytes_per_frame") or by_role["rate"]
+    if distortion is None or rate is None:
+        raise RDError("no installed metric declares a distortion and a rate: name them with --distortion and --rate")
+    return distortion, rate
+
+
 def curves_from_entries(
     entries: list,
     distortion: str,
     *,
-    rate: str = "bytes",
+    rate: str,
     info: Mapping[str, MetricId] | None = None,
     left_out: list | None = None,
     limits: Mapping[str, float] | None = None,

@@ -27,7 +27,7 @@ import numpy as np
 
 from lwbench.leaderboard import FLAG_NOTES, LeaderboardEntry, build_leaderboard, format_value, header_name
 from lwbench.metric import MetricId
-from lwbench.noise_floor import draw_floor
+from lwbench.noise_floor import FloorIds, draw_floor
 from lwbench.plotting import pyplot, save_png_svg
 from lwbench.rd import curves_from_entries
 from lwbench.registry import Registry
@@ -56,6 +56,7 @@ def rd_figures(entries: list[LeaderboardEntry], info: Mapping[str, MetricId], ou
         return []
     plt = pyplot()
     figures = []
+    floor_ids = FloorIds.from_info(info)
     for distortion in ids_with_role(info, "distortion"):
         curves = curves_from_entries(entries, distortion, rate=rates[0], info=info)
         curves = {k: c for k, c in curves.items() if c.points}
@@ -90,7 +91,8 @@ def rd_figures(entries: list[LeaderboardEntry], info: Mapping[str, MetricId], ou
                 if dropped:
                     ax.text(1.01, 0.0, f"exact (0), not drawn:\n{', '.join(dropped)}", transform=ax.transAxes,
                             fontsize=7, color="#555", va="bottom")
-            draw_floor(ax, [e for e in entries if e.dataset == ds], distortion, rates[0])  # lwbench.noise_floor
+            if floor_ids is not None:  # the installed metrics declare the floor's quantities
+                draw_floor(ax, [e for e in entries if e.dataset == ds], distortion, rates[0], floor_ids)
             ax.set_xlabel(f"{header_name(rates[0], info)} per frame")
             ax.set_ylabel(header_name(distortion, info))
             ax.grid(True, which="both", alpha=0.3)

@@ -20,7 +20,8 @@ __all__ = ["NoiseFloorMetric"]
 class NoiseFloorMetric(FrameMetric):
     name = "floor"
     order = 25
-    ids = (MetricId("floor_sigma", "m"), MetricId("floor_mask_bpp", "bit"))
+    ids = (MetricId("floor_sigma", "m", quantity="range_noise_sigma"),
+           MetricId("floor_mask_bpp", "bit", quantity="mask_bits_per_point"))
     description = (
         "the noise floor's inputs: the sensor model's 1-sigma range noise (m) and the entropy of the "
         "scan's return mask (order-2 context model on its range image) in bits per original point"

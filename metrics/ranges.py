@@ -328,7 +328,7 @@ class RangeMetric(FrameMetric):
     version = "5"
     order = 20
     ids = (
-        MetricId("range_rmsd", "m", LOWER, default=True, role="distortion"),
+        MetricId("range_rmsd", "m", LOWER, default=True, role="distortion", quantity="range_error_rms"),
         # Below 90 % of the returns paired, a codec is flagged (it cannot win by dropping the scan),
         # and its range RMSD -- over the paired returns only -- is kept off the RD curves.
         MetricId("coverage", "share", HIGHER, default=True, guard=Guard(

@@ -12,11 +12,11 @@ class SizeMetric(FrameMetric):
     name = "size"
     order = 10
     ids = (
-        MetricId("bytes", "B", LOWER, default=True, role="rate"),
+        MetricId("bytes", "B", LOWER, default=True, role="rate", quantity="bytes_per_frame"),
         MetricId("ratio", "x", HIGHER, default=True, headline=True),
-        MetricId("bits_per_point", "bit", LOWER, role="rate"),
+        MetricId("bits_per_point", "bit", LOWER, role="rate", quantity="bits_per_point"),
         MetricId("link_kbps", "kB/s", LOWER),
-        MetricId("points_in", "pts"),
+        MetricId("points_in", "pts", quantity="input_points"),
         MetricId("points_out", "pts"),
     )
     description = (

@@ -19,7 +19,7 @@ from lwbench.cli import app
 from lwbench.derive import METHOD_PRESET
 from lwbench.io import read_kitti_bin
 from lwbench.leaderboard import CAVEATS, build_leaderboard
-from lwbench.loaders import KittiDataset
+from lwbench_plugins.files import KittiDataset
 from lwbench.rd import curves_from_entries
 from lwbench.registry import get_registry
 from lwbench.store import SCHEMA_VERSION, ResultRow, ResultStore
@@ -155,7 +155,7 @@ def test_sensor_guessed_is_a_caveat_not_a_quality_flag(tmp_path):
     assert [e.codec for e in entries] == ["exact", "good", "small"]
     # The caveat keeps nothing off the rate-distortion curves (low coverage keeps small off range_rmsd).
     left_out: list = []
-    curves = curves_from_entries(entries, "range_rmsd", info=INFO, left_out=left_out)
+    curves = curves_from_entries(entries, "range_rmsd", rate="bytes", info=INFO, left_out=left_out)
     assert {k[1] for k in curves} == {"good", "exact"}
     assert [(e.codec, why.split(":")[0]) for e, why in left_out] == [("small", "low_coverage")]
 

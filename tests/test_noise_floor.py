@@ -23,7 +23,7 @@ from lwbench import (
 )
 from lwbench.cli import app
 from lwbench.leaderboard import build_leaderboard
-from lwbench.noise_floor import draw_floor, entry_floor, floor_lines
+from lwbench.noise_floor import FloorIds, draw_floor, entry_floor, floor_lines, print_floor
 from lwbench.plotting import pyplot
 from lwbench.registry import get_registry
 from lwbench.run import DatasetRequest, RunRequest, Study
@@ -124,6 +124,34 @@ def store(tmp_path_factory):
     return path
 
 
+#: The ids the floor reads, found by the quantities the installed metrics declare.
+IDS = FloorIds.from_info(get_registry().metric_info())
+
+
+def test_the_floor_finds_its_ids_by_declared_quantity_not_by_name():
+    """Core knows no metric by name: a metric plugin that stores the same quantities under other
+    ids gets the floor; one that does not declare them gets no floor line (and no error)."""
+    from lwbench import MetricId
+
+    assert IDS == FloorIds("range_rmsd", "bits_per_point", "points_in", "floor_sigma", "floor_mask_bpp")
+    renamed = {i: MetricId(i, quantity=q) for i, q in [
+        ("err_rms", "range_error_rms"), ("bpp", "bits_per_point"), ("n", "input_points"),
+        ("sigma", "range_noise_sigma"), ("mask", "mask_bits_per_point")]}
+    assert FloorIds.from_info(renamed) == FloorIds("err_rms", "bpp", "n", "sigma", "mask")
+    values = {"err_rms": 0.005, "sigma": 0.03, "mask": 0.2, "bpp": 9.0}
+    entry = types.SimpleNamespace(dataset="d", label="c", flags=[], value=lambda k, s="mean": values.get(k))
+    lines: list[str] = []
+    print_floor([entry], None, renamed, lines.append)
+    assert lines and "bits/point at each err_rms" in lines[0]
+    without_mask = {i: m for i, m in renamed.items() if i != "mask"}
+    assert FloorIds.from_info(without_mask) is None
+    lines.clear()
+    print_floor([entry], None, without_mask, lines.append)
+    assert lines == []
+    with pytest.raises(ValueError, match="quantity"):
+        MetricId("x", quantity="loudness")
+
+
 def _entries(store):
     with ResultStore(store, readonly=True) as results:
         return build_leaderboard(results, info=get_registry().metric_info())
@@ -135,7 +163,7 @@ def test_rows_carry_the_floor_inputs_and_rd_prints_the_floor(store):
     coarse = next(e for e in entries if e.label == "rangeimage(step=0.05)")
     assert coarse.value("floor_sigma") == 0.01  # the noise the simulator adds, not the VLP-16's 3 cm
     expected = floor_bits_per_point(coarse.value("range_rmsd"), 0.01, coarse.value("floor_mask_bpp"))
-    assert entry_floor(coarse) == pytest.approx(expected)
+    assert entry_floor(coarse, IDS) == pytest.approx(expected)
     res = CliRunner().invoke(app, ["rd", "--store", str(store)], catch_exceptions=False, env={"COLUMNS": "400"})
     assert res.exit_code == 0, res.output
     text = " ".join(res.output.split())  # the console wraps long lines
@@ -143,7 +171,7 @@ def test_rows_carry_the_floor_inputs_and_rd_prints_the_floor(store):
     gap = coarse.value("bits_per_point") - expected
     assert " ".join(f"rangeimage(step=0.05) {expected:.2f} ({gap:+.2f})".split()) in line
     assert "raw exact (no finite floor)" in line
-    assert floor_lines(entries)[0].startswith("floor on sim")
+    assert floor_lines(entries, IDS)[0].startswith("floor on sim")
 
 
 @pytest.mark.heavy
@@ -168,13 +196,14 @@ def test_the_floor_curve_sits_below_the_codecs_at_their_distortions(store):
     entries = [e for e in _entries(store) if not e.flags and (e.value("range_rmsd") or 0) > 0]
     plt = pyplot()
     fig, ax = plt.subplots()
-    assert draw_floor(ax, entries, "range_rmsd", "bits_per_point")
+    assert draw_floor(ax, entries, "range_rmsd", "bits_per_point", IDS)
     (line,) = [x for x in ax.get_lines() if x.get_label() == "noise floor"]
     x, y = line.get_data()
     for e in entries:
         at = np.interp(np.log(e.value("range_rmsd")), np.log(y), x)
-        assert at == pytest.approx(entry_floor(e), rel=0.02)
-    assert not draw_floor(ax, [types.SimpleNamespace(flags=[], value=lambda k, s="mean": None)], "chamfer", "bytes")
+        assert at == pytest.approx(entry_floor(e, IDS), rel=0.02)
+    empty = types.SimpleNamespace(flags=[], value=lambda k, s="mean": None)
+    assert not draw_floor(ax, [empty], "chamfer", "bytes", IDS)
     plt.close(fig)
 
 
@@ -194,7 +223,7 @@ def test_a_codec_below_the_floor_is_called_out():
         return types.SimpleNamespace(dataset="sim", label=label, flags=[], value=lambda k, s="mean": values.get(k))
 
     floor = floor_bits_per_point(0.005, 0.03, 0.2)
-    (line,) = floor_lines([entry("above", floor + 1.0), entry("below", floor - 0.4)])
+    (line,) = floor_lines([entry("above", floor + 1.0), entry("below", floor - 0.4)], IDS)
     above, below = line.split("; ")[-2:]
     assert "BELOW THE FLOOR" not in above and "BELOW THE FLOOR" in below and "declared range noise" in below
 
@@ -203,7 +232,7 @@ def test_on_other_distortions_the_floor_is_points_not_a_line_across_codecs(store
     entries = [e for e in _entries(store) if not e.flags and (e.value("range_rmsd") or 0) > 0]
     plt = pyplot()
     fig, ax = plt.subplots()
-    assert draw_floor(ax, entries, "chamfer", "bytes")
+    assert draw_floor(ax, entries, "chamfer", "bytes", IDS)
     (line,) = [x for x in ax.get_lines() if x.get_label() == "noise floor"]
     assert line.get_linestyle() == "None" and len(line.get_xdata()) == len(entries)
     plt.close(fig)

@@ -52,7 +52,7 @@ def _bd(min_coverage=None):
         entries = [Entry(e.codec, e.label, e.values, [f for f in e.flags if e.values["coverage"] < min_coverage])
                    for e in entries]
     left_out: list = []
-    curves = curves_from_entries(entries, "range_rmsd", info=INFO, left_out=left_out, limits=limits)
+    curves = curves_from_entries(entries, "range_rmsd", rate="bytes", info=INFO, left_out=left_out, limits=limits)
     summary = summarise(curves, unit="m", reference="fine", left_out=left_out, rate_unit="B")
     return summary["tunnel"]["bd"]["coarse"], left_out
 

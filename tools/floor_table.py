@@ -8,9 +8,10 @@ at the configuration's range RMSD and its distance to it (``lwbench.noise_floor`
 ``--curve`` prints the floor itself for the first frame of a dataset (as ``lwbench run`` would
 read it): the mask's bits, measured and bounded, and the floor at a few range RMSDs.
 
-The rows come from ``lwbench run`` (``tools/floor_rd.sh`` runs the README's); a flagged
-configuration (low coverage) is listed with its flag, since the floor -- the floor of a codec
-that keeps every return -- does not bound it.
+The rows come from ``lwbench run`` (``lwbench run --config examples/runs/floor_rd.toml`` runs the
+README's, into ``lwbench-results/floor_rd.sqlite``); a flagged configuration (low coverage) is
+listed with its flag, since the floor -- the floor of a codec that keeps every return -- does not
+bound it.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import math
 
 from lwbench.leaderboard import build_leaderboard
 from lwbench.noise_floor import (
+    FloorIds,
     entry_floor,
     floor_bits_per_point,
     gaussian_step_bits,
@@ -81,13 +83,16 @@ def main() -> None:
     reg = get_registry()
     with ResultStore(args.store, readonly=True) as store:
         entries = build_leaderboard(store, dataset=args.dataset, info=reg.metric_info(), sort="bits_per_point")
+    ids = FloorIds.from_info(reg.metric_info())
+    if ids is None:
+        ap.error("the installed metrics do not declare the noise floor's quantities")
     print(
         "| dataset | codec | bytes | bits/point | range RMSD (mm) | D1 PSNR (dB) | coverage | floor (bits/point) "
         "| distance to the floor (bits/point) | flags |"
     )
     print("|---|---|---|---|---|---|---|---|---|---|")
     for e in sorted(entries, key=lambda e: (e.dataset, e.value("bits_per_point") or math.inf)):
-        floor, bpp, rmsd = entry_floor(e), e.value("bits_per_point"), e.value("range_rmsd")
+        floor, bpp, rmsd = entry_floor(e, ids), e.value("bits_per_point"), e.value("range_rmsd")
         if e.flags:  # the floor of a codec that keeps every return does not bound a flagged one
             floor = None
         gap = None if floor is None or bpp is None else bpp - floor

@@ -67,11 +67,12 @@ def leaderboard(
 
 @app.command(rich_help_panel=BENCHMARK)
 def rd(
-    distortion: Annotated[str, typer.Option(
-        help="Distortion metric id (range_rmsd, chamfer, d1_psnr, ate_rmse, ...).", rich_help_panel=OUTPUT)]
-    = "range_rmsd",
-    rate: Annotated[str, typer.Option(
-        help="Rate metric id: bytes (per frame) or bits_per_point.", rich_help_panel=OUTPUT)] = "bytes",
+    distortion: Annotated[str | None, typer.Option(
+        help="Distortion metric id (range_rmsd, chamfer, d1_psnr, ate_rmse, ...). Default: the range error.",
+        rich_help_panel=OUTPUT)] = None,
+    rate: Annotated[str | None, typer.Option(
+        help="Rate metric id: bytes (per frame) or bits_per_point. Default: bytes per frame.",
+        rich_help_panel=OUTPUT)] = None,
     store: StoreOpt = None,
     dataset: ShownDataset = None,
     reference: Annotated[str | None, typer.Option(
@@ -86,12 +87,14 @@ def rd(
     """Rate-distortion from the sweep points in the store: each codec's curve, the Pareto front,
     values at equal rate / distortion (interpolated, never extrapolated) and BD-rate."""
     from lwbench.leaderboard import build_leaderboard, check_metric_ids
-    from lwbench.rd import curves_from_entries, summarise
+    from lwbench.rd import curves_from_entries, default_axes, summarise
     from lwbench.store import ResultStore
 
     _choice(format, ("table", "json"), "--format")
     reg = registry()
     info = reg.metric_info()
+    default_distortion, default_rate = default_axes(info)
+    distortion, rate = distortion or default_distortion, rate or default_rate
     check_metric_ids([distortion, rate], info, "lwbench rd")
     # A curve needs a sweep, which a run file declares: plain `lwbench run` gives one point a codec.
     path = _store(store, "run a sweep first: `lwbench run --config examples/runs/rd_tunnel.toml`, "
@@ -115,7 +118,7 @@ def rd(
     _print_rd(summary, info, distortion, rate, reference, at_rate, at_distortion)
     from lwbench.noise_floor import print_floor  # the noise floor's line (docs/codecs.md)
 
-    print_floor(entries, curves, lambda line: console.print(escape(line), highlight=False))
+    print_floor(entries, curves, info, lambda line: console.print(escape(line), highlight=False))
     if skipped:
         console.print("left out: " + escape("; ".join(f"{s['label']} ({s['reason']})" for s in skipped)))
 
