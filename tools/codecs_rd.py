@@ -7,7 +7,7 @@ float32 rounding. This prints, per shared real folder (first frame, the loader's
 the 3-D distance of each decoded return from its own original -- paired exactly through the
 encoder's ``Layers.source``, with ``mode=lossless`` so that only the direction moves it -- and the
 payload bytes at the default 1 cm step. The rate-distortion tables themselves come from
-``tools/codecs_rd.sh`` (``lwbench run`` + ``lwbench leaderboard``).
+``examples/runs/codecs_rd.toml`` (``lwbench run --config`` + ``lwbench leaderboard``).
 
     python tools/codecs_rd.py PATH/TO/shared/data/real
 """

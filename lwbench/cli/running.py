@@ -3,6 +3,7 @@ the :class:`~lwbench.run.Study`, print the board of what it asked for."""
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Annotated
 
@@ -68,9 +69,11 @@ def run(
     isolate: Annotated[bool, typer.Option(
         "--isolate/--in-process", rich_help_panel=EXECUTION,
         help="Evaluate in worker processes with a timeout and a memory ceiling (default).")] = True,
-    timeout: Annotated[float, typer.Option(
-        help="Seconds one evaluation may take before its worker is killed (0: no limit).", min=0,
-        rich_help_panel=EXECUTION)] = DEFAULT_TIMEOUT_S,
+    # None: not given -- a run file's timeout then holds, and DEFAULT_TIMEOUT_S where neither says.
+    timeout: Annotated[float | None, typer.Option(
+        help=f"Seconds one evaluation may take before its worker is killed (0: no limit; default: "
+        f"{DEFAULT_TIMEOUT_S:g}, or a --config file's timeout).", min=0,
+        rich_help_panel=EXECUTION)] = None,
     memory_limit: Annotated[int | None, typer.Option(
         help="MB of memory per worker (default: 80% of the machine's, shared).", min=1,
         rich_help_panel=EXECUTION)] = None,
@@ -86,19 +89,22 @@ def run(
     from lwbench.store import ResultStore
 
     reg = registry()
-    options = {"retry_failed": retry_failed, "force": force, "isolate": isolate, "timeout_s": timeout or None,
-               "memory_mb": memory_limit, "executor": executor, "address": address}
+    options = {"retry_failed": retry_failed, "force": force, "isolate": isolate, "memory_mb": memory_limit,
+               "executor": executor, "address": address}
     if config is not None:
         if dataset or dataset_param or codec or param:
             raise ParameterError("--config describes the datasets and codecs: leave out --dataset, --codec and --param")
         request = read_run_file(config)
         request = request.with_options(store=store, workers=max(workers, request.workers),
                                        metrics=tuple(words(metric)) or None, **options)
+        if timeout is not None:  # given on the command line: it wins over the file's (0 too: no limit)
+            request = replace(request, timeout_s=timeout or None)
     else:
         request = RunRequest.from_words(
             reg, dataset=dataset, dataset_params=words(dataset_param), codecs=words(codec), params=words(param),
             metric_params=words(metric_param), seed=seed, frames=frames, sequence_metrics=not no_sequence_metrics,
-            metrics=tuple(words(metric)), store=store, workers=workers, **options)
+            metrics=tuple(words(metric)), store=store, workers=workers,
+            timeout_s=(DEFAULT_TIMEOUT_S if timeout is None else timeout) or None, **options)
     info = reg.metric_info()
     wanted = wanted_columns(columns, info)
     if sort is not None:

@@ -39,6 +39,14 @@ class DatasetRequest:
     source: str | None = None
     params: Mapping[str, Any] = field(default_factory=dict)
     frames: int | None = None  # this dataset's first N frames (None: the request's ``frames``)
+    # this dataset's metric settings (a run file's per-dataset ``metric_params``: the simulator's
+    # noise for the floor), merged key by key over the request's for this dataset's plans only
+    metric_params: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+
+    def merged_metric_params(self, common: Mapping[str, Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
+        """The request's metric settings with this dataset's over them (key by key)."""
+        return {m: {**common.get(m, {}), **self.metric_params.get(m, {})}
+                for m in dict.fromkeys([*common, *self.metric_params])}
 
 
 @dataclass(frozen=True)
@@ -134,7 +142,7 @@ class RunRequest:
                 sweeps=self.sweeps,
                 frames=d.frames if d.frames is not None else self.frames,
                 seed=seed,
-                metric_params=self.metric_params,
+                metric_params=d.merged_metric_params(self.metric_params),
                 sequence_metrics=self.sequence_metrics,
                 metrics=self.metrics,
             )
