@@ -11,7 +11,9 @@ The layering rules (tests/test_layering.py holds the project to them):
 - core (``lwbench``) never imports a plugin (``lwbench_plugins``) or a built-in metric
   (``lwbench_metrics``);
 - a plugin folder (``plugins/<name>``, ``metrics``) imports from lwbench only the public API --
-  ``lwbench``, ``lwbench.geometry``, ``lwbench.testing`` -- and otherwise its own modules.
+  ``lwbench``, ``lwbench.geometry``, ``lwbench.io``, ``lwbench.testing`` -- and otherwise its own
+  modules. The built-in loaders (``plugins/files``) are such a folder; so is every example plugin
+  under ``examples/`` (:data:`EXAMPLES`), checked as a third-party package would be.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 #: Source folder -> the import name it is installed under (pyproject.toml's package-dir).
 PACKAGES = {"lwbench": "lwbench", "metrics": "lwbench_metrics", "plugins": "lwbench_plugins"}
-PUBLIC = ("lwbench", "lwbench.geometry", "lwbench.testing")
+PUBLIC = ("lwbench", "lwbench.geometry", "lwbench.io", "lwbench.testing")
 
 
 @dataclass(frozen=True)
@@ -36,18 +38,40 @@ class Module:
     is_package: bool
 
 
+#: The example third-party plugins: each ``examples/<dist>/`` with a pyproject.toml, whose
+#: top-level modules and packages (not its tests) are installed under their own names.
+EXAMPLES = "examples"
+
+
+def _add(out: dict[str, Module], base: Path, path: Path, import_name: str | None) -> None:
+    rel = path.relative_to(base).with_suffix("")
+    parts = [import_name, *rel.parts] if import_name else list(rel.parts)
+    is_package = parts[-1] == "__init__"
+    if is_package:
+        parts = parts[:-1]
+    out[".".join(parts)] = Module(".".join(parts), path, len(path.read_text().splitlines()), is_package)
+
+
+def example_modules(root: Path = ROOT) -> dict[str, Module]:
+    """The modules of every example plugin under ``examples/``, by import name."""
+    out: dict[str, Module] = {}
+    for project in sorted((root / EXAMPLES).glob("*/pyproject.toml")):
+        base = project.parent
+        for path in sorted(base.glob("*.py")):
+            _add(out, base, path, None)
+        for pkg in sorted(p for p in base.iterdir() if (p / "__init__.py").is_file() and p.name != "tests"):
+            for path in sorted(pkg.rglob("*.py")):
+                _add(out, base, path, None)
+    return out
+
+
 def modules(root: Path = ROOT) -> dict[str, Module]:
-    """Every Python module of the three source folders, by import name."""
-    out = {}
+    """Every Python module of the three source folders and of the example plugins, by import name."""
+    out: dict[str, Module] = {}
     for folder, import_name in PACKAGES.items():
         for path in sorted((root / folder).rglob("*.py")):
-            rel = path.relative_to(root / folder).with_suffix("")
-            parts = [import_name, *rel.parts]
-            is_package = parts[-1] == "__init__"
-            if is_package:
-                parts = parts[:-1]
-            out[".".join(parts)] = Module(".".join(parts), path, len(path.read_text().splitlines()), is_package)
-    return out
+            _add(out, root / folder, path, import_name)
+    return {**out, **example_modules(root)}
 
 
 def _imports(module: Module, known: dict[str, Module] | None = None) -> Iterator[tuple[str, int]]:
@@ -131,7 +155,7 @@ def breaches(mods: dict[str, Module]) -> list[str]:
         top = name.split(".")[0]
         own = name if top == "lwbench_metrics" else ".".join(name.split(".")[:2])
         for target, line in _imports(mod):
-            where = f"{mod.path.relative_to(ROOT)}:{line}"
+            where = f"{mod.path.relative_to(ROOT) if mod.path.is_relative_to(ROOT) else mod.path}:{line}"
             if top == "lwbench":
                 if target.split(".")[0] in ("lwbench_plugins", "lwbench_metrics"):
                     out.append(f"{where}: core imports the plugin module {target}")

@@ -9,6 +9,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from lwbench_plugins.files import KittiDataset
 from scipy.spatial.transform import Rotation
 from typer.testing import CliRunner
 
@@ -17,7 +18,6 @@ from lwbench.bags import BagDataset, frames_to_clouds, write_bag
 from lwbench.bags.cloud import cloud_arrays, cloud_layout
 from lwbench.cli import app
 from lwbench.io import write_kitti_sequence
-from lwbench.loaders import KittiDataset
 from lwbench.registry import get_registry
 from lwbench.run import resolve_dataset
 from lwbench.store import ResultStore

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 from _real import kitti_frame0
 from _scans import spinning_scan, street_scan
+from lwbench_plugins.files import KittiDataset, PointFileDataset
 
 from lwbench import SensorModel, get_sensor
 from lwbench.errors import DataFormatError
 from lwbench.io import read_kitti_bin
-from lwbench.loaders import KittiDataset, PointFileDataset
 from lwbench.testing import hdl32_ring_scan, room_scan
 
 HDL64E_10HZ = SensorModel("hdl64e-10hz", get_sensor("hdl64e").elevations_deg, 360 / 2083, 0.9, 120.0, 10.0)

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from _scans import rotating_2d_laser_scan, shuffled, street_scan, tilted, voxel_downsampled, write_bin
+from lwbench_plugins.files import KittiDataset, PointFileDataset
 
 from lwbench import SensorModel, get_sensor
 from lwbench.beam_guess import MAX_SPREAD
@@ -19,7 +20,6 @@ from lwbench.derive import (
     derive_sensor,
 )
 from lwbench.io import read_kitti_bin, read_point_file
-from lwbench.loaders import KittiDataset, PointFileDataset
 from lwbench.sensor import MAX_BEAMS, MAX_RAYS
 
 HDL64E_10HZ = SensorModel("hdl64e-10hz", get_sensor("hdl64e").elevations_deg, 360 / 2083, 0.9, 120.0, 10.0)

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from _scans import shuffled, street_scan, voxel_downsampled, write_bin
+from lwbench_plugins.files import KittiDataset
 from typer.testing import CliRunner
 
 from lwbench import DataWarning, get_sensor
@@ -19,7 +20,6 @@ from lwbench.cli import app
 from lwbench.derive import METHOD_PRESET
 from lwbench.io import read_kitti_bin
 from lwbench.leaderboard import CAVEATS, build_leaderboard
-from lwbench_plugins.files import KittiDataset
 from lwbench.rd import curves_from_entries
 from lwbench.registry import get_registry
 from lwbench.store import SCHEMA_VERSION, ResultRow, ResultStore

@@ -183,7 +183,7 @@ def moving_room(tmp_path_factory) -> Path:
 
 
 def _frames(folder: Path, n: int) -> list[Frame]:
-    from lwbench.loaders import KittiDataset
+    from lwbench_plugins.files import KittiDataset
 
     ds = KittiDataset(path=str(folder))
     return [ds[i] for i in range(n)]

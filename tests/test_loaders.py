@@ -8,11 +8,11 @@ import json
 import numpy as np
 import pytest
 from _scans import spinning_scan, write_bin
+from lwbench_plugins.files import KittiDataset, PointFileDataset
 
 from lwbench import SensorModel, get_sensor, import_open3d, open_dataset
 from lwbench.errors import DataFormatError, DataWarning, ParameterError
 from lwbench.io import read_kitti_bin, read_point_file, read_pose_file, write_kitti_sequence
-from lwbench.loaders import KittiDataset, PointFileDataset
 
 o3d = import_open3d()
 
@@ -337,7 +337,8 @@ def test_a_ring_field_with_placeholders_gives_the_real_table_and_step():
 def test_a_long_folder_opens_and_gives_its_poses_without_reading_its_scans(tmp_path, monkeypatch):
     """A 5,000-scan drive is opened by listing it: no scan is read until a frame is asked for,
     and the sequence metrics' poses come from the poses file (issue 31)."""
-    import lwbench.loaders as loaders
+    import lwbench_plugins.files.loaders as loaders
+
     from lwbench import Frame
 
     sensor = get_sensor("vlp16")

@@ -143,7 +143,7 @@ def test_cached_frame_equals_the_simulated_one(tmp_path):
     fresh = ds.simulate(2)
     assert np.array_equal(fresh.points, again.points) and np.array_equal(fresh.ring, again.ring)
     # The folder is a KITTI sequence that lwbench's own loader reads back.
-    from lwbench.loaders import KittiDataset
+    from lwbench_plugins.files import KittiDataset
 
     for i in (0, 1):
         ds[i]

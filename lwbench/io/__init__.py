@@ -1,7 +1,9 @@
-"""Reading and writing scans, poses and sensor files on disk.
+"""Reading and writing scans, poses and sensor files on disk -- public: a loader plugin (the
+built-in ``files`` and ``kitti`` ones, ``plugins/files``) reads its files with these.
 
-Readers return plain arrays (:class:`ScanArrays`); the dataset classes in :mod:`lwbench.loaders`
-turn them into frames. One module per kind of file:
+Readers return plain arrays (:class:`ScanArrays`); a :class:`lwbench.Dataset` turns them into
+frames. Errors are lwbench's own (:class:`lwbench.DataFormatError` for a bad file). This package
+is the public API (docs/plugins.md); the modules behind it, one per kind of file, are not:
 
 - :mod:`~lwbench.io.raw_bin` -- headerless float32 ``.bin`` (KITTI, nuScenes), the record size
   decided by the geometry each reading yields;
@@ -14,7 +16,6 @@ turn them into frames. One module per kind of file:
 
 from __future__ import annotations
 
-from lwbench.errors import DataFormatError, DataWarning
 from lwbench.io.kitti_writer import write_kitti_sequence
 from lwbench.io.point_files import read_point_file, read_xyz
 from lwbench.io.poses import read_kitti_calib, read_kitti_poses, read_pose_file, read_times
@@ -41,8 +42,6 @@ __all__ = [
     "VTK_SUFFIX",
     "BIN_LAYOUTS",
     "FIELDS_HINT",
-    "DataFormatError",
-    "DataWarning",
     "write_kitti_sequence",
     "SENSOR_FILE",
 ]

@@ -13,9 +13,9 @@ import time
 import numpy as np
 import pytest
 from lwbench_metrics import GeometryMetric, RangeMetric, SizeMetric
+from lwbench_plugins.files import KittiDataset
 
 from lwbench import CodecKind, Evaluation
-from lwbench.loaders import KittiDataset
 from lwbench.registry import get_registry
 from lwbench.run import DatasetSpec, RunPlan, expand_codec_configs
 from lwbench.run.runner import Runner  # the internal under test

@@ -4,7 +4,7 @@ each scan's.
 Scans are taken from the layout, never from "every file that ends in .bin": KITTI's
 ``NNNNNN.bin``, or the files of a folder that share one naming scheme (``000012.bin``,
 ``scan_0012.pcd``, nuScenes' ``n008-...-0400__LIDAR_TOP__1533151603547590.pcd.bin``); other
-scan-like files are skipped with a :class:`~lwbench.errors.DataWarning` that names them.
+scan-like files are skipped with a :class:`lwbench.DataWarning` that names them.
 Per-point sidecars (``times_000012.bin``, ``timestamps_NN.bin``, ``labels_NN.bin`` beside
 ``raw_NN.bin``) are never scans, whatever their count.
 """
@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from lwbench.errors import DataFormatError, DataWarning
+from lwbench import DataFormatError, DataWarning
 from lwbench.io import scan_suffix
 
 __all__ = ["pick_scans", "frame_numbers", "rows_for", "natural_key", "time_sidecars", "read_time_sidecar"]

@@ -1,14 +1,15 @@
 """Built-in file loaders: KITTI odometry folders and folders (or single files) of scans.
 
-They are registered through the ``lwbench`` entry point ``files`` like any plugin. Each loader
-is one small class; what they share is how scans are picked from a folder
-(:mod:`lwbench.scan_picking`) and how the sensor model is chosen.
+They are registered through the ``lwbench`` entry point ``files`` like any plugin and import
+only lwbench's public API (``lwbench``, ``lwbench.io``), as a third-party loader would. Each
+loader is one small class; what they share is how scans are picked from a folder
+(:mod:`.scan_picking`) and how the sensor model is chosen.
 
 The ``sensor`` parameter:
 
 - ``auto`` (default): ``sensor.json`` beside the scans (written by lwbench), else an Ouster
   ``sensor_metadata.json``, else a model derived from the first scan
-  (:func:`lwbench.derive.derive_sensor`: the ``ring`` field, else the point order, else -- with
+  (:func:`lwbench.derive_sensor`: the ``ring`` field, else the point order, else -- with
   a warning, as a guess -- a preset's table that fits, the elevation histogram, a uniform grid).
   Every later scan is then checked to come from the same sensor (a folder that mixes sensors
   fails on the first scan that does not match) and to lie in the model's range window (a
@@ -31,17 +32,26 @@ from typing import Any
 
 import numpy as np
 
-from lwbench import Frame, Param
-from lwbench.dataset import Dataset
-from lwbench.derive import Derivation, derive_sensor, outside_range_window, sensor_mismatch
-from lwbench.errors import DataWarning, ParameterError
-from lwbench.hookspecs import hookimpl
+from lwbench import (
+    SENSOR_PRESETS,
+    DataFormatError,
+    Dataset,
+    DataWarning,
+    Derivation,
+    Frame,
+    Param,
+    ParameterError,
+    SensorModel,
+    derive_sensor,
+    get_sensor,
+    outside_range_window,
+    sensor_mismatch,
+)
 from lwbench.io import (
     BIN_LAYOUTS,
     NUSCENES_SUFFIX,
     SCAN_SUFFIXES,
     SENSOR_FILE,
-    DataFormatError,
     ScanArrays,
     read_kitti_bin,
     read_kitti_calib,
@@ -52,8 +62,8 @@ from lwbench.io import (
     read_times,
     scan_suffix,
 )
-from lwbench.scan_picking import pick_scans, read_time_sidecar, rows_for, time_sidecars
-from lwbench.sensor import SENSOR_PRESETS, SensorModel, get_sensor
+
+from .scan_picking import pick_scans, read_time_sidecar, rows_for, time_sidecars
 
 __all__ = ["KittiDataset", "PointFileDataset", "SensorChoice", "pick_scans", "KITTI_LAYOUTS"]
 
@@ -462,7 +472,3 @@ class PointFileDataset(_ScanFiles):
             return scan_suffix(path) is not None
         return path.is_dir() and any(scan_suffix(p) not in (None, ".bin") for p in path.iterdir())
 
-
-@hookimpl
-def lwbench_datasets() -> list[type[Dataset]]:
-    return [KittiDataset, PointFileDataset]
