@@ -261,6 +261,40 @@ def test_stream_command_prints_the_table_and_writes_fig6d(moving_room, tmp_path)
     assert res.exit_code == 2 and "--cap" in res.output
 
 
+@pytest.mark.heavy
+def test_stream_takes_its_dataset_and_codecs_from_a_run_file(moving_room, tmp_path):
+    """The Fig. 6d setting is a run file, not names in core: --config gives the dataset, the codecs
+    (the first is the byte ratios' reference) and their settings; contradictions are refused."""
+    from typer.testing import CliRunner
+
+    from lwbench.cli import app
+
+    run_file = tmp_path / "two.toml"
+    run_file.write_text(f'frames = 3\n[[dataset]]\nname = "{moving_room}"\n[[codec]]\nname = "raw"\n'
+                        '[[codec]]\nname = "random"\nparams = { ratio = 0.05 }\n')
+    res = CliRunner().invoke(app, ["stream", "--config", str(run_file), "--cap", "none", "--drain", "0.5",
+                                   "--out", str(tmp_path / "s")], catch_exceptions=False)
+    assert res.exit_code == 0, res.output
+    runs = json.loads((tmp_path / "s" / "stream.json").read_text())["runs"]
+    assert [(r["codec"], r["frames"]) for r in runs] == [("raw", 3), ("random", 3)]
+    assert "raw/random bytes on the wire -- " in " ".join(res.stdout.split())
+    res = CliRunner().invoke(app, ["stream", "--config", str(run_file), "--codec", "raw"])
+    assert res.exit_code == 2 and "--config" in res.output
+    (tmp_path / "seeds.toml").write_text(run_file.read_text().replace("frames = 3", "frames = 3\nseeds = [0, 1]"))
+    res = CliRunner().invoke(app, ["stream", "--config", str(tmp_path / "seeds.toml")])
+    assert res.exit_code == 2 and "one dataset with one seed" in " ".join(res.output.split())
+
+
+def test_the_fig6d_run_file_streams_raw_gmm_vsgp_on_the_tunnel():
+    from lwbench.registry import get_registry
+    from lwbench.run.config import read_run_file
+
+    request = read_run_file(Path(__file__).parents[1] / "examples" / "runs" / "fig6d.toml")
+    (plan,) = request.plans(get_registry())
+    assert [c.name for c in plan.configs] == ["raw", "gmm", "vsgp"] and plan.dataset.params["scene"] == "tunnel"
+    assert {"fit_points": 4000, "max_iter": 20}.items() <= plan.configs[1].params.items()
+
+
 @pytest.mark.slow
 def test_at_50_kbps_vsgp_gets_through_and_raw_does_not_on_the_sim_tunnel(tmp_path):
     """The issue's headline, checked with margins that hold on a loaded machine: compute may make

@@ -13,7 +13,7 @@ from .output import console, escape, progress, writable_folder
 
 PANEL = "Link"
 LINK = "Link model"
-DEFAULT_STREAM_CODECS = ("raw", "gmm", "vsgp")  # the VSGP paper's Fig. 6d
+DEFAULT_FRAMES = 40
 
 
 @app.command(rich_help_panel=PANEL)
@@ -21,14 +21,18 @@ def stream(
     dataset: DatasetOpt = None,
     dataset_param: DatasetParams = None,
     codec: Annotated[list[str] | None, typer.Option(
-        "--codec", help="Codec to stream (repeat). Default: raw, gmm, vsgp.", rich_help_panel=CODECS)] = None,
+        "--codec", help="Codec to stream (repeat; the first is the reference of the byte ratios). Default: the "
+        "codecs of a default run.", rich_help_panel=CODECS)] = None,
     param: Sweeps = None,
     cap: Annotated[list[str] | None, typer.Option(
         "--cap", help="Link cap in KB/s (repeat; 'none' = no cap). Default: 50.", rich_help_panel=LINK)] = None,
-    frames: Annotated[int, typer.Option(
+    frames: Annotated[int | None, typer.Option(
         "--frames", min=1, rich_help_panel=DATA,
         help="Only the first N frames of the dataset, streamed at the sensor's rate (the simulator is asked for at "
-             "least N).")] = 40,
+             f"least N). Default: the run file's, else {DEFAULT_FRAMES}.")] = None,
+    config: Annotated[Path | None, typer.Option(
+        help="A TOML run file naming the dataset and the codecs with their settings (one dataset, one seed), e.g. "
+             "examples/runs/fig6d.toml: the VSGP paper's Fig. 6d.", rich_help_panel=DATA)] = None,
     burst: Annotated[int | None, typer.Option(
         help="Token bucket size, bytes (default 100 ms of the cap).", rich_help_panel=LINK)] = None,
     loss: Annotated[float, typer.Option(help="Probability that a packet is lost.", rich_help_panel=LINK)] = 0.0,
@@ -54,17 +58,32 @@ def stream(
 ) -> None:
     """Stream a sequence from a scout process to a base process over 127.0.0.1 through a bandwidth cap:
     per codec KB/s, bytes, frames on time / late / dropped, latency and the base's map IoU; Fig. 6d."""
-    from lwbench.link import LinkModel, StreamSettings, fig6d, parse_cap, ratio_line, run_study
-    from lwbench.run import frames_for, parse_assignments, parse_sweeps, resolve_dataset
-    from lwbench.run.plan import expand_codec_configs
+    from lwbench.errors import ParameterError
+    from lwbench.link import LinkModel, StreamSettings, fig6d, parse_cap, ratio_lines, run_study
+    from lwbench.run import RunRequest
 
     writable_folder(out)  # before the study: an unwritable --out must not cost the whole stream
     reg = registry()
-    names = list(dict.fromkeys(words(codec))) or list(DEFAULT_STREAM_CODECS)
-    sweeps = parse_sweeps(words(param), names, "--param")
-    configs = [c for n in names for c in expand_codec_configs(reg.codec(n), sweeps.get(n, {}), seed)]
-    spec = resolve_dataset(reg, dataset, parse_assignments(words(dataset_param), "--dataset-param"), seed)
-    spec = frames_for(reg, spec, frames)
+    if config is not None:
+        from lwbench.run.config import read_run_file
+
+        if dataset or dataset_param or codec or param:
+            raise ParameterError("--config names the dataset and the codecs: leave out --dataset, --codec and --param")
+        request = read_run_file(config)
+        if len(request.datasets) != 1 or len(request.seeds) != 1:
+            raise ParameterError(f"{config}: a stream runs one dataset with one seed (the file has "
+                                 f"{len(request.datasets)} dataset(s), {len(request.seeds)} seed(s))")
+        if frames is None:
+            frames = request.datasets[0].frames or request.frames
+        seed = request.seeds[0]
+    else:
+        request = RunRequest.from_words(reg, dataset=dataset, dataset_params=words(dataset_param),
+                                        codecs=words(codec), params=words(param), seed=seed)
+    frames = frames or DEFAULT_FRAMES
+    # The same planning as `lwbench run` (every name and value checked), for the stream's frames.
+    (plan,) = RunRequest(datasets=request.datasets, codecs=request.codecs, sweeps=request.sweeps, frames=frames,
+                         seeds=(seed,)).plans(reg)
+    configs, spec = list(plan.configs), plan.dataset
     links = [LinkModel(parse_cap(c), burst, loss, delay_ms, corrupt, mtu, seed) for c in (words(cap) or ["50"])]
     settings = StreamSettings(frames=frames, queue=queue, drain_s=drain, threads=threads, voxel=voxel,
                               restart_at=restart_base_at, encode=encode)
@@ -85,8 +104,7 @@ def stream(
     (out / "stream.json").write_text(result.to_json())
     for table in stream_tables(result.runs, result.rate_hz):
         console.print(table)
-    line = ratio_line(result.runs)
-    if line:
+    for line in ratio_lines(result.runs):
         console.print(escape(line))
     for link in dict.fromkeys(r.link for r in result.runs):
         name = "fig6d_" + ("uncapped" if link.rate_kbps is None else f"{link.rate_kbps:g}KBps")

@@ -9,13 +9,12 @@ and draws the VSGP paper's Fig. 6d. Messages are framed by :mod:`.wire` (no pick
 
 from .session import FrameOutcome, StreamRun, StreamSettings, reference_map, run_stream
 from .shaper import KB, LinkModel, TokenBucket, parse_cap
-from .study import PAPER_FIG6D, STREAM_TABLES, StudyResult, fig6d, ratio_line, run_study, table_rows
+from .study import STREAM_TABLES, StudyResult, fig6d, ratio_lines, run_study, table_rows
 
 __all__ = [
     "FrameOutcome",
     "KB",
     "LinkModel",
-    "PAPER_FIG6D",
     "StreamRun",
     "STREAM_TABLES",
     "StreamSettings",
@@ -23,7 +22,7 @@ __all__ = [
     "TokenBucket",
     "fig6d",
     "parse_cap",
-    "ratio_line",
+    "ratio_lines",
     "reference_map",
     "run_stream",
     "run_study",

@@ -24,10 +24,7 @@ from .session import StreamRun, StreamSettings, reference_map, run_stream
 from .shaper import KB, LinkModel
 from .wire import HEADER
 
-__all__ = ["PAPER_FIG6D", "StudyResult", "dropped_text", "fig6d", "latency_split_text", "run_study", "table_rows"]
-
-# The VSGP paper, Fig. 6d (simulated mine tunnel, scout -> base over 2.4 GHz WiFi, measured with ifstat).
-PAPER_FIG6D = {"raw": (1750.0, 840e6), "gmm": (25.8, 12.4e6), "vsgp": (18.2, 8.7e6)}  # KB/s, bytes per run
+__all__ = ["StudyResult", "dropped_text", "fig6d", "latency_split_text", "ratio_lines", "run_study", "table_rows"]
 
 
 @dataclass
@@ -131,21 +128,30 @@ def latency_split_text(parts: dict[str, float]) -> str:
     return " / ".join("–" if k not in parts else f"{parts[k]:.0f}" for k in keys)
 
 
-def ratio_line(runs: Sequence[StreamRun], a: str = "raw", b: str = "vsgp") -> str | None:
-    """Raw/VSGP bytes on the wire at each cap where both ran (the paper: 840/8.7 ~ 1750/18.2 ~ 96):
+def ratio_lines(runs: Sequence[StreamRun]) -> list[str]:
+    """The first codec's bytes on the wire over each other codec's, at each cap where both ran --
     per frame (payload and framing: the compression the link sees) and in total (which also
-    counts the frames each side did not get to send)."""
-    out = []
-    for link in dict.fromkeys(r.link for r in runs):
-        x = next((r for r in runs if r.link == link and r.codec == a), None)
-        y = next((r for r in runs if r.link == link and r.codec == b), None)
-        xs, ys = x.summary() if x else None, y.summary() if y else None
-        if xs and ys and y.wire_bytes and xs["payload_bytes_mean"] and ys["payload_bytes_mean"]:
-            # a frame on the wire: its payload and the 25-byte framing header
-            per_frame = (xs["payload_bytes_mean"] + HEADER) / (ys["payload_bytes_mean"] + HEADER)
-            out.append(f"{link.label}: {per_frame:.1f} per frame, {x.wire_bytes / y.wire_bytes:.1f} in total "
-                       f"({a} sent {x.frames_sent}, {b} {y.frames_sent} of {len(y.outcomes)} frames)")
-    return f"{a}/{b} bytes on the wire -- " + "; ".join(out) + " (VSGP paper, Fig. 6d: ~96)" if out else None
+    counts the frames each side did not get to send). The first codec named is the reference
+    (the VSGP paper's Fig. 6d streams raw first: raw/vsgp ~ 96 there)."""
+    codecs = list(dict.fromkeys(r.codec for r in runs))
+    if len(codecs) < 2:
+        return []
+    a = codecs[0]
+    lines = []
+    for b in codecs[1:]:
+        out = []
+        for link in dict.fromkeys(r.link for r in runs):
+            x = next((r for r in runs if r.link == link and r.codec == a), None)
+            y = next((r for r in runs if r.link == link and r.codec == b), None)
+            xs, ys = x.summary() if x else None, y.summary() if y else None
+            if xs and ys and y.wire_bytes and xs["payload_bytes_mean"] and ys["payload_bytes_mean"]:
+                # a frame on the wire: its payload and the 25-byte framing header
+                per_frame = (xs["payload_bytes_mean"] + HEADER) / (ys["payload_bytes_mean"] + HEADER)
+                out.append(f"{link.label}: {per_frame:.1f} per frame, {x.wire_bytes / y.wire_bytes:.1f} in total "
+                           f"({a} sent {x.frames_sent}, {b} {y.frames_sent} of {len(y.outcomes)} frames)")
+        if out:
+            lines.append(f"{a}/{b} bytes on the wire -- " + "; ".join(out))
+    return lines
 
 
 def fig6d(runs: Sequence[StreamRun], out: Path, name: str = "fig6d", title: str = "") -> list[Path]:
