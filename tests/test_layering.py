@@ -2,8 +2,9 @@
 
 - core (``lwbench``) never imports a plugin or a built-in metric module;
 - every plugin folder (``plugins/<name>``, ``metrics``) imports from lwbench only the public API
-  (``lwbench``, ``lwbench.geometry``, ``lwbench.testing``) -- the same boundary a third-party
-  plugin has;
+  (``lwbench``, ``lwbench.geometry``, ``lwbench.io``, ``lwbench.testing``) -- the same boundary a
+  third-party plugin has; the built-in loaders (``plugins/files``) included, and the example
+  third-party plugins under ``examples/`` checked the same way (issue 34, item 3);
 - production code never uses the test kit or another module's private helpers;
 - no import circle anywhere in the tree, plugins and metrics included (lazy imports inside
   functions count too).
@@ -38,6 +39,26 @@ def test_the_public_modules_exist_and_the_rules_see_every_plugin_folder():
     plugin_folders = {p.name for p in (ROOT / "plugins").iterdir() if (p / "__init__.py").is_file()}
     seen = {m.split(".")[1] for m in MODULES if m.startswith("lwbench_plugins.") and m.count(".") >= 1}
     assert plugin_folders <= seen
+    # The built-in loaders are a plugin folder, not core; the example plugins are checked too.
+    assert "lwbench_plugins.files" in MODULES and "lwbench.loaders" not in MODULES
+    assert {"lwbench_example_codec", "lwbench_example_loader"} <= set(graph_tool.example_modules())
+
+
+def test_the_layering_rule_catches_a_loader_that_reaches_into_core(tmp_path):
+    """What the built-in loaders did before they moved (issue 34, item 3): a plugin deriving its
+    sensor through a private core module is a breach; through the public API it is not."""
+    example = tmp_path / "examples" / "lwbench-bad-loader"
+    example.mkdir(parents=True)
+    (example / "pyproject.toml").write_text("[project]\nname = 'lwbench-bad-loader'\n")
+    (example / "bad_loader.py").write_text(
+        "from lwbench.derive import derive_sensor\nfrom lwbench.scan_picking import pick_scans\n"
+        "from lwbench import Dataset, derive_sensor as ok\nfrom lwbench.io import read_point_file\n"
+    )
+    mods = graph_tool.example_modules(tmp_path)
+    found = [line.split(": ", 1)[1] for line in graph_tool.breaches(mods)]
+    assert [f.split(",")[0] for f in found] == [
+        "bad_loader imports lwbench.derive", "bad_loader imports lwbench.scan_picking",
+    ]
 
 
 def _imported_names(path: Path) -> set[tuple[str, str]]:
@@ -82,19 +103,20 @@ def test_no_metric_id_is_written_into_the_board_the_report_or_the_gates():
 
 
 def test_the_public_api_is_written_down_once_and_agrees_with_the_code():
-    """docs/plugins.md's "The public API" lists exactly what lwbench, lwbench.geometry and
-    lwbench.testing export (their __all__)."""
+    """docs/plugins.md's "The public API" lists exactly what lwbench, lwbench.geometry, lwbench.io
+    and lwbench.testing export (their __all__)."""
     import re
 
     import lwbench
     import lwbench.geometry
+    import lwbench.io
     import lwbench.testing
 
     text = (ROOT / "docs" / "plugins.md").read_text()
     section = text[text.index("## The public API"):]
     parts = re.split(r"\*\*`(lwbench(?:\.\w+)?)`\*\*", section)
     listed = {parts[i]: set(re.findall(r"`([A-Za-z_][A-Za-z0-9_]*)`", parts[i + 1])) for i in range(1, len(parts), 2)}
-    for module in (lwbench, lwbench.geometry, lwbench.testing):
+    for module in (lwbench, lwbench.geometry, lwbench.io, lwbench.testing):
         assert listed[module.__name__] == set(module.__all__), module.__name__
 
 
