@@ -54,7 +54,7 @@ METRIC_ROLES = ("", "rate", "distortion", "runtime")
 #: id declares each quantity; a missing one only switches off what needs it (the noise floor).
 QUANTITIES = {
     "range_error_rms": "RMS range error over a scan's returns, m: the distortion the noise floor is drawn against",
-    "bits_per_point": "coded bits per input point: the rate of the noise floor",
+    "rate_bits_per_point": "coded bits per input point: the rate of the noise floor",
     "bytes_per_frame": "payload bytes per frame: the rate axis when none is named",
     "input_points": "points in the original scan (a floor in bits per point as bytes per frame)",
     "range_noise_sigma": "the range noise the scan's sensor model declares, m: an input of the noise floor",

@@ -200,7 +200,7 @@ class FloorIds:
         from lwbench.metric import ids_by_quantity
 
         found = ids_by_quantity(info)
-        wanted = ("range_error_rms", "bits_per_point", "input_points", "range_noise_sigma", "mask_bits_per_point")
+        wanted = ("range_error_rms", "rate_bits_per_point", "input_points", "range_noise_sigma", "mask_bits_per_point")
         if not all(q in found for q in wanted):
             return None
         return cls(*(found[q] for q in wanted))

@@ -14,7 +14,7 @@ class SizeMetric(FrameMetric):
     ids = (
         MetricId("bytes", "B", LOWER, default=True, role="rate", quantity="bytes_per_frame"),
         MetricId("ratio", "x", HIGHER, default=True, headline=True),
-        MetricId("bits_per_point", "bit", LOWER, role="rate", quantity="bits_per_point"),
+        MetricId("bits_per_point", "bit", LOWER, role="rate", quantity="rate_bits_per_point"),
         MetricId("link_kbps", "kB/s", LOWER),
         MetricId("points_in", "pts", quantity="input_points"),
         MetricId("points_out", "pts"),

@@ -135,7 +135,7 @@ def test_the_floor_finds_its_ids_by_declared_quantity_not_by_name():
 
     assert IDS == FloorIds("range_rmsd", "bits_per_point", "points_in", "floor_sigma", "floor_mask_bpp")
     renamed = {i: MetricId(i, quantity=q) for i, q in [
-        ("err_rms", "range_error_rms"), ("bpp", "bits_per_point"), ("n", "input_points"),
+        ("err_rms", "range_error_rms"), ("bpp", "rate_bits_per_point"), ("n", "input_points"),
         ("sigma", "range_noise_sigma"), ("mask", "mask_bits_per_point")]}
     assert FloorIds.from_info(renamed) == FloorIds("err_rms", "bpp", "n", "sigma", "mask")
     values = {"err_rms": 0.005, "sigma": 0.03, "mask": 0.2, "bpp": 9.0}
