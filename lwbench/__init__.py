@@ -78,7 +78,7 @@ from lwbench.params import Param
 from lwbench.payload import Payload
 from lwbench.points import POINT_ENCODINGS, pack_points, unpack_points
 from lwbench.resolve import codec_class, make_codec, open_dataset, sequence_metric
-from lwbench.sensor import SENSOR_PRESETS, RangeImage, SensorModel, get_sensor, register_sensor
+from lwbench.sensor import SENSOR_PRESETS, RangeImage, SensorModel, get_sensor
 from lwbench.tiles import TILE_M, SpillingTiles, split_by_tile, tiles_at, tiles_near
 from lwbench.version import __version__
 
@@ -154,7 +154,6 @@ __all__ = [
     "RangeImage",
     "read_kitti_bin",
     "read_point_file",
-    "register_sensor",
     "RepresentationCodec",
     "resolve_device",
     "SelectionCodec",

@@ -23,7 +23,7 @@ from lwbench.frame import Frame
 from lwbench.params import Param, resolve_params
 from lwbench.payload import Payload
 from lwbench.points import POINT_ENCODINGS, pack_points, unpack_points
-from lwbench.sensor import SensorModel, UnknownSensorError, remember_encoded
+from lwbench.sensor import SensorModel, UnknownSensorError
 
 __all__ = [
     "Codec",
@@ -69,7 +69,6 @@ class Codec(abc.ABC):
     def __init__(self, **params: Any) -> None:
         self.config: dict[str, Any] = resolve_params(self.name, self.all_params(), params)
         self._sensors = SensorCatalog()  # see :attr:`sensors`
-        self._sensors_handed = False  # whether use_sensors was called (see read_sensor)
 
     def reset_stream(self) -> None:
         """Forget any state carried from one scan to the next (VSGP's warm start does), so the
@@ -141,28 +140,23 @@ class Codec(abc.ABC):
         decode``. From then on those (and the ones it encoded with) are *all* it resolves. Returns
         the codec, so ``MyCodec(**p).use_sensors([s]).decode(data)`` reads."""
         self.sensors.update(sensors)
-        self._sensors_handed = True
         return self
 
     def sensor_meta(self, sensor: SensorModel) -> dict:
         """The sensor as a payload names it (a preset or an id: see :meth:`SensorModel.to_wire`);
         this instance learns the table, so it decodes its own payloads."""
         self.sensors.add(sensor)
-        remember_encoded(sensor)
         return sensor.to_wire()
 
     def read_sensor(self, payload: Payload, key: str = "sensor") -> SensorModel:
         """The sensor a payload's metadata names under ``key`` (resolved among the tables this
-        instance knows), or ``PayloadError``.
-
-        A decoder that was never handed its sensors (a bare ``MyCodec().decode(data)`` in code
-        written before :meth:`use_sensors`) still finds a sensor an encoder of this process wrote,
-        with a ``DeprecationWarning``; every lwbench receiver hands its sensors, so none of its
-        decodes depends on that."""
+        instance knows), or ``PayloadError``. Only what the instance was handed or encoded with
+        counts: no process-wide memory of sensors, so a decode never depends on what else the
+        process did (a bare ``MyCodec().decode(data)`` of a payload naming a derived sensor by id
+        fails with the fix in its message)."""
         value = self.meta_field(payload, key, dict)
-        legacy = not self._sensors_handed
         try:
-            return SensorModel.from_wire(value, self.sensors, legacy=legacy)
+            return SensorModel.from_wire(value, self.sensors)
         except UnknownSensorError as exc:
             raise PayloadError(f"{payload.codec_id} payload: {exc.args[0]}") from None
         except (KeyError, TypeError, ValueError, OverflowError) as exc:

@@ -35,7 +35,7 @@ from lwbench.sensor_specs import (
 )
 
 __all__ = [
-    "SensorModel", "RangeImage", "SENSOR_PRESETS", "get_sensor", "register_sensor", "UnknownSensorError",
+    "SensorModel", "RangeImage", "SENSOR_PRESETS", "get_sensor", "UnknownSensorError",
     "MAX_BEAMS", "MIN_AZIMUTH_STEP_DEG", "MAX_RAYS", "MAX_RANGE_M", "DERIVED_RANGE_NOISE_M",
 ]
 
@@ -264,11 +264,10 @@ class SensorModel:
         return {"id": self.sensor_id}
 
     @classmethod
-    def from_wire(cls, d: dict, catalog=None, *, legacy: bool = False) -> SensorModel:
+    def from_wire(cls, d: dict, catalog=None) -> SensorModel:
         """Inverse of :meth:`to_wire` (a full table, as older payloads carried, also reads); an
         id is looked up in ``catalog`` (a :class:`lwbench.catalog.SensorCatalog`: the tables the
-        receiver was told) -- and, with ``legacy`` (a decoder never handed its sensors), among
-        what this process encoded or registered with the deprecated :func:`register_sensor`.
+        receiver was told), and nowhere else.
 
         Raises :class:`UnknownSensorError` for an id the receiver was not told about and
         ``ValueError`` / ``KeyError`` / ``TypeError`` for a malformed description."""
@@ -276,11 +275,7 @@ class SensorModel:
             raise TypeError(f"a sensor description is an object, got {type(d).__name__}")
         if "id" in d and len(d) == 1:
             key = d["id"]
-            found = None
-            if isinstance(key, str):
-                found = catalog.get(key) if catalog is not None else None
-                if found is None and (legacy or catalog is None):
-                    found = _legacy_lookup(key)
+            found = catalog.get(key) if isinstance(key, str) and catalog is not None else None
             if found is None:
                 raise UnknownSensorError(
                     f"sensor {key!r} is not known to this receiver: its table travels once per stream "
@@ -341,45 +336,6 @@ def _preset(name: str) -> SensorModel:
 
 #: The sensors lwbench knows by name, built from their datasheets (:data:`SENSOR_SPECS`).
 SENSOR_PRESETS: dict[str, SensorModel] = {name: _preset(name) for name in SENSOR_SPECS}
-
-
-# Deprecated memory of sensors: those this process's encoders wrote and those given to the
-# deprecated register_sensor. Only a decoder that was never handed its sensors reads it -- old
-# plugin tests' ``MyCodec().decode(MyCodec().encode(frame))`` -- with a DeprecationWarning. No
-# lwbench receiver does (each hands its decoder the stream's sensors: lwbench.catalog), so no
-# decode of lwbench depends on what else the process did; it goes once plugins' tests hand theirs.
-_CATALOG: dict[str, SensorModel] = {}
-
-
-def remember_encoded(sensor: SensorModel) -> None:
-    """Note that an encoder of this process wrote a payload naming ``sensor`` (see ``_CATALOG``)."""
-    _CATALOG.setdefault(sensor.sensor_id, sensor)
-
-
-def _legacy_lookup(sensor_id: str) -> SensorModel | None:
-    found = _CATALOG.get(sensor_id)
-    if found is not None:
-        import warnings
-
-        warnings.warn(
-            f"sensor {sensor_id} was resolved from what this process encoded before: hand the decoder its "
-            "sensors (codec.use_sensors([frame.sensor])); a bare decoder will not find them in a later lwbench",
-            DeprecationWarning, stacklevel=4,
-        )
-    return found
-
-
-def register_sensor(sensor: SensorModel) -> str:
-    """Deprecated: hand the decoder its sensors instead (``codec.use_sensors([sensor])``).
-
-    Still makes payloads naming ``sensor`` by id decode in this process, for scripts written
-    before decoders were told their sensors."""
-    import warnings
-
-    warnings.warn("lwbench.register_sensor is deprecated: hand the decoder its sensors with "
-                  "codec.use_sensors([sensor])", DeprecationWarning, stacklevel=2)
-    _CATALOG.setdefault(sensor.sensor_id, sensor)
-    return sensor.sensor_id
 
 
 def get_sensor(name: str) -> SensorModel:

@@ -11,7 +11,6 @@ and compressed (:mod:`lwbench.artifacts`); the store holds their names.
 from __future__ import annotations
 
 import hashlib
-import io
 import json
 import math
 import platform
@@ -409,7 +408,7 @@ class ResultStore:
 
     def artifact(self, evaluation: str, name: str) -> np.ndarray | None:
         """An array kept with an evaluation (``None`` if it was not kept, or its file is gone):
-        a file beside the store, or -- rows of older lwbench releases -- a blob in the store."""
+        a file beside the store, or a blob in an in-memory store."""
         if self._has_files and self.files is not None:
             row = self.conn.execute(
                 "SELECT digest FROM artifact_files WHERE evaluation = ? AND name = ?", (evaluation, name)
@@ -479,12 +478,12 @@ class ResultStore:
 _DEFAULTS = {"plugin_version": "''", "scoring": "'[]'", "sensor_guessed": "0"}
 
 
-def _unpack_array(blob: bytes) -> np.ndarray:
-    """A blob in the store: :func:`lwbench.artifacts.pack_array` bytes (in-memory stores), or
-    zstd-compressed ``.npy`` (stores of schema 2 and before), read without pickle."""
+def _unpack_array(blob: bytes) -> np.ndarray | None:
+    """A blob in the store: :func:`lwbench.artifacts.pack_array` bytes (in-memory stores).
+    Stores of schema 2 and before kept zstd ``.npy`` blobs here; 0.2 no longer reads them
+    (issue 34: no 0.1 compatibility shims) -- such an array counts as not kept, which makes a
+    run re-evaluate what needs it (the sequence stage re-decodes a frame whose payload is gone)
+    and a report show no gallery cloud for it. Their rows are read as ever."""
     if blob[:4] == b"LWBC":
         return unpack_array(blob, "an array in the store")
-    import zstandard
-
-    raw = zstandard.ZstdDecompressor().decompress(blob)
-    return np.load(io.BytesIO(raw), allow_pickle=False)
+    return None

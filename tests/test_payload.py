@@ -109,9 +109,9 @@ def test_a_derived_sensor_travels_as_a_short_id_not_its_table():
         vsgp().use_sensors([other]).decode(data)
     # ... and decodes once it is handed the stream's table.
     assert len(vsgp().use_sensors([fresh]).decode(data)) > 0
-    # A bare decoder (code written before use_sensors) still finds it, with a deprecation warning.
-    with pytest.warns(DeprecationWarning, match="use_sensors"):
-        assert len(vsgp().decode(data)) > 0
+    # A bare decoder is told nothing: no process-wide memory of what was encoded (issue 34).
+    with pytest.raises(PayloadError, match="use_sensors"):
+        vsgp().decode(data)
 
 
 def test_a_run_decodes_from_the_bytes_and_the_dataset_not_from_process_state():
@@ -134,16 +134,22 @@ def test_a_run_decodes_from_the_bytes_and_the_dataset_not_from_process_state():
     assert len(enc.decoded) > 0
 
 
-def test_the_deprecated_register_sensor_still_lets_old_scripts_decode():
-    from lwbench import SensorModel, register_sensor
+def test_a_decoder_resolves_only_the_sensors_it_was_handed_not_what_the_process_encoded():
+    """The process-wide sensor registry is gone (issue 34, item 6): a bare decoder of a payload
+    naming a derived sensor by id fails with the fix in the message, however many encoders of the
+    process wrote that sensor; handed the sensor, it decodes."""
+    import lwbench
+    from lwbench import PayloadError, SensorModel
     from lwbench.registry import get_registry
     from lwbench.testing import room_scan
 
+    cls = get_registry().codec("rangeimage")
     sensor = SensorModel("derived-old", tuple(np.linspace(-10, 10, 8)), 1.0, 0.1, 20.0, 10.0)
-    data = get_registry().codec("rangeimage")().encode(room_scan(sensor, seed=2))
-    with pytest.warns(DeprecationWarning, match="use_sensors"):
-        register_sensor(sensor)
-    assert len(get_registry().codec("rangeimage")().decode(data)) > 0
+    data = cls().encode(room_scan(sensor, seed=2))
+    with pytest.raises(PayloadError, match="use_sensors"):
+        cls().decode(data)
+    assert len(cls().use_sensors([sensor]).decode(data)) > 0
+    assert not hasattr(lwbench, "register_sensor")
 
 
 def test_a_sensor_id_names_exactly_one_table():

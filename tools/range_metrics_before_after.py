@@ -22,7 +22,6 @@ from lwbench_metrics.ranges import RangeMetric
 from lwbench import CodecKind, Evaluation, Frame
 from lwbench.registry import get_registry
 from lwbench.run import resolve_dataset
-from lwbench.sensor import register_sensor
 
 
 def cells(frame: Frame, decoded: np.ndarray) -> tuple[float, float, float]:
@@ -48,8 +47,7 @@ def rotate_z(points: np.ndarray, angle: float) -> np.ndarray:
 def decode(codec: str, frame: Frame) -> np.ndarray:
     cls = get_registry().codec(codec)
     data = cls().encode(frame)
-    register_sensor(frame.sensor)
-    return cls().decode(data)
+    return cls().use_sensors([frame.sensor]).decode(data)
 
 
 def fmt(v: tuple[float, float, float]) -> str:
