@@ -4,11 +4,9 @@ This module is the public API. Plugins (including the built-in ones under ``plug
 import only from here.
 """
 
-from lwbench.catalog import SensorCatalog
 from lwbench.codec import BUDGET_PARAMS, Codec, CodecKind, RepresentationCodec, SelectionCodec, top_k
 from lwbench.dataset import Dataset
 from lwbench.deps import import_open3d
-from lwbench.derive import Derivation, derive_sensor, outside_range_window, sensor_mismatch
 from lwbench.device import DEVICE_PARAM, resolve_device
 from lwbench.errors import (
     DataFormatError,
@@ -78,7 +76,9 @@ from lwbench.params import Param
 from lwbench.payload import Payload
 from lwbench.points import POINT_ENCODINGS, pack_points, unpack_points
 from lwbench.resolve import codec_class, make_codec, open_dataset, sequence_metric
-from lwbench.sensor import SENSOR_PRESETS, RangeImage, SensorModel, get_sensor
+from lwbench.sensors.catalog import SensorCatalog
+from lwbench.sensors.derive import Derivation, derive_sensor, outside_range_window, sensor_mismatch
+from lwbench.sensors.model import SENSOR_PRESETS, RangeImage, SensorModel, get_sensor
 from lwbench.tiles import TILE_M, SpillingTiles, split_by_tile, tiles_at, tiles_near
 from lwbench.version import __version__
 

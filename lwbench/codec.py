@@ -17,13 +17,13 @@ from typing import Any, ClassVar, TypeVar
 
 import numpy as np
 
-from lwbench.catalog import SensorCatalog
 from lwbench.errors import ParameterError, PayloadError, SelectionError
 from lwbench.frame import Frame
 from lwbench.params import Param, resolve_params
 from lwbench.payload import Payload
 from lwbench.points import POINT_ENCODINGS, pack_points, unpack_points
-from lwbench.sensor import SensorModel, UnknownSensorError
+from lwbench.sensors.catalog import SensorCatalog
+from lwbench.sensors.model import SensorModel, UnknownSensorError
 
 __all__ = [
     "Codec",
@@ -127,7 +127,7 @@ class Codec(abc.ABC):
         """Parse and check a payload meant for this codec (raises ``PayloadError``)."""
         return Payload.from_bytes(data, expect_codec=self.name)
 
-    # -- sensors: named in the payload, their tables handed to the decoder (lwbench.catalog) --------
+    # -- sensors: named in the payload, their tables handed to the decoder (lwbench.sensors.catalog) --------
     @property
     def sensors(self) -> SensorCatalog:
         """The sensor tables this instance knows: those it encoded with, and those it was handed

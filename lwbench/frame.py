@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from lwbench.errors import InvalidFrameError
-from lwbench.sensor import SensorModel
+from lwbench.sensors.model import SensorModel
 
 __all__ = ["Frame"]
 

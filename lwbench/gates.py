@@ -24,8 +24,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from lwbench.errors import LwbenchError, ParameterError
-from lwbench.leaderboard import STATS, LeaderboardEntry, build_leaderboard
 from lwbench.registry import Registry, get_registry, new_registry
+from lwbench.results.leaderboard import STATS, LeaderboardEntry, build_leaderboard
 
 if TYPE_CHECKING:
     from lwbench.run import RunRequest
@@ -186,8 +186,8 @@ def run_gate(codec: str | type, *, store: str | Path | None = None, **options: A
     occupancy) run only with ``sequence_metrics=True``; opt-in ones (kiss) only when also named
     in ``metrics``.
     """
+    from lwbench.results.store import ResultStore
     from lwbench.run import Study
-    from lwbench.store import ResultStore
 
     registry, request = gate_request(codec, **options)
     study = Study.prepare(request, registry)

@@ -10,8 +10,8 @@ import numpy as np
 from lwbench.errors import DataFormatError, DataWarning, LwbenchError
 from lwbench.payload import MAGIC, Payload
 from lwbench.registry import Registry
-from lwbench.sensor import SensorModel
-from lwbench.store import is_results_store
+from lwbench.results.store import is_results_store
+from lwbench.sensors.model import SensorModel
 
 __all__ = ["describe", "is_results_store", "WHAT_INSPECT_READS"]
 
@@ -155,7 +155,7 @@ def _describe_payload(path: Path, registry: Registry) -> dict:
 
 
 def _describe_store(path: Path) -> dict:
-    from lwbench.store import ResultStore
+    from lwbench.results.store import ResultStore
 
     with ResultStore(path, readonly=True) as store:
         conn = store.conn

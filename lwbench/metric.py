@@ -260,7 +260,7 @@ class SequenceEvaluation:
         self.codec_name, self.params, self.seed = codec_name, params, seed
         self._cache: dict[str, Any] = {} if _cache is None else _cache
         self.on_step = on_step
-        self._files = files  # a lwbench.artifacts.CloudFiles every task of the run reads, or None
+        self._files = files  # a lwbench.results.artifacts.CloudFiles every task of the run reads, or None
         if callable(decoded):
             self._decode = decoded
         else:
@@ -320,7 +320,7 @@ class SequenceEvaluation:
         return its name: a file beside the results store (content-addressed), or -- a store in
         memory -- this run's cache. For what a :meth:`cached` value should refer to rather than
         hold: the original occupancy map of a long drive is tiles of keys, not one array."""
-        from lwbench.artifacts import digest_of
+        from lwbench.results.artifacts import digest_of
 
         if self._files is not None:
             return self._files.put(array)

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from lwbench.geometry import rotate, voxel_centres, voxel_key_range_x, voxel_keys
-from lwbench.sensor import SensorModel
+from lwbench.sensors.model import SensorModel
 
 __all__ = [
     "OCCUPANCY_PARAMS",

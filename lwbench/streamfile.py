@@ -34,7 +34,7 @@ from pathlib import Path
 from typing import Any, BinaryIO
 
 from lwbench.errors import DataFormatError
-from lwbench.sensor import SensorModel
+from lwbench.sensors.model import SensorModel
 
 __all__ = [
     "FrameEntry",

@@ -25,7 +25,7 @@ import numpy as np
 
 from lwbench.frame import Frame
 from lwbench.geometry import spherical, unit_directions
-from lwbench.sensor import SensorModel, get_sensor
+from lwbench.sensors.model import SensorModel, get_sensor
 
 __all__ = [
     "HDL32_NOMINAL",

@@ -19,8 +19,8 @@ from lwbench.bags.cloud import cloud_arrays, cloud_layout
 from lwbench.cli import app
 from lwbench.io import write_kitti_sequence
 from lwbench.registry import get_registry
+from lwbench.results.store import ResultStore
 from lwbench.run import resolve_dataset
-from lwbench.store import ResultStore
 from lwbench.streamfile import open_payloads
 from lwbench.testing import check_dataset, room_scan
 from lwbench.transcode import decoded_frames

@@ -114,8 +114,8 @@ def test_inspect_payload_scan_and_store(tmp_path, store, kitti_folder, vlp16_fra
 def test_changed_data_under_the_same_label_is_not_averaged_in(tmp_path):
     import numpy as np
 
-    from lwbench.leaderboard import build_leaderboard
-    from lwbench.store import ResultRow, ResultStore
+    from lwbench.results.leaderboard import build_leaderboard
+    from lwbench.results.store import ResultRow, ResultStore
 
     with ResultStore(tmp_path / "r.sqlite") as store:
         for ds_id, value in (("sim:v1", 1.0), ("sim:v2", 3.0)):
@@ -165,9 +165,9 @@ def test_a_narrow_terminal_leaves_columns_out_instead_of_folding_numbers(store, 
     from rich.console import Console
 
     from lwbench.cli import output
-    from lwbench.leaderboard import build_leaderboard
     from lwbench.registry import get_registry
-    from lwbench.store import ResultStore
+    from lwbench.results.leaderboard import build_leaderboard
+    from lwbench.results.store import ResultStore
 
     buf = io.StringIO()
     monkeypatch.setattr(output, "console", Console(file=buf, width=90))

@@ -8,7 +8,8 @@ import pytest
 from _scans import interleaved, spinning_scan
 
 from lwbench import SensorModel, get_sensor
-from lwbench.derive import (
+from lwbench.io import read_kitti_bin, read_ouster_metadata, read_point_file
+from lwbench.sensors.derive import (
     METHOD_FIRING_MAJOR,
     METHOD_PRESET,
     METHOD_RING_FIELD,
@@ -18,7 +19,6 @@ from lwbench.derive import (
     derive_sensor,
     sensor_mismatch,
 )
-from lwbench.io import read_kitti_bin, read_ouster_metadata, read_point_file
 
 HDL64E = get_sensor("hdl64e")
 

@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 
 from lwbench import DataWarning, get_sensor
-from lwbench.leaderboard import build_leaderboard
 from lwbench.registry import new_registry
+from lwbench.results.leaderboard import build_leaderboard
+from lwbench.results.store import ResultStore
 from lwbench.run import DatasetRequest, RunRequest, Study
 from lwbench.run.plan import resolve_dataset
-from lwbench.store import ResultStore
 from lwbench.testing import room_scan
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "lwbench-example-loader"

@@ -109,8 +109,8 @@ def test_a_cloud_beyond_its_sensors_reach_is_absurd_and_a_decoder_refuses_it():
     """Absurd = a point farther than the payload's sensor sees (max range + 50 %), for a codec
     whose payloads name their sensor; else farther than 10 km. checked_cloud refuses the same."""
     from lwbench import MAX_COORDINATE, Payload, PayloadError, checked_cloud, get_sensor
-    from lwbench.catalog import SensorCatalog
     from lwbench.fuzz.server import judge
+    from lwbench.sensors.catalog import SensorCatalog
 
     named = Payload("x", {"sensor": get_sensor("vlp16").to_wire()}, b"").to_bytes()  # sees to 10 m
     bare = Payload("x", {}, b"").to_bytes()

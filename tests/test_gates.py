@@ -84,7 +84,7 @@ def test_a_gate_reuses_a_store_and_refuses_unknown_metric_ids(project, tmp_path)
                 lwbench_gate(JitterCodec, dataset="{folder}", frames=3, max_rmsd=0.05)
     '''))
     pytester.runpytest_subprocess("-q", f"--lwbench-store={store}").assert_outcomes(passed=2)
-    from lwbench.store import ResultStore
+    from lwbench.results.store import ResultStore
 
     with ResultStore(store, readonly=True) as s:
         rows_after_first = s.count()

@@ -10,8 +10,9 @@ from _scans import rotating_2d_laser_scan, shuffled, street_scan, tilted, voxel_
 from lwbench_plugins.files import KittiDataset, PointFileDataset
 
 from lwbench import SensorModel, get_sensor
-from lwbench.beam_guess import MAX_SPREAD
-from lwbench.derive import (
+from lwbench.io import read_kitti_bin, read_point_file
+from lwbench.sensors.beam_guess import MAX_SPREAD
+from lwbench.sensors.derive import (
     METHOD_HISTOGRAM,
     METHOD_PRESET,
     METHOD_RING_MAJOR,
@@ -19,8 +20,7 @@ from lwbench.derive import (
     DataWarning,
     derive_sensor,
 )
-from lwbench.io import read_kitti_bin, read_point_file
-from lwbench.sensor import MAX_BEAMS, MAX_RAYS
+from lwbench.sensors.model import MAX_BEAMS, MAX_RAYS
 
 HDL64E_10HZ = SensorModel("hdl64e-10hz", get_sensor("hdl64e").elevations_deg, 360 / 2083, 0.9, 120.0, 10.0)
 

@@ -14,7 +14,7 @@ from lwbench.cli import app
 from lwbench.errors import DataFormatError
 from lwbench.inspection import describe, is_results_store
 from lwbench.registry import get_registry
-from lwbench.store import SCHEMA_VERSION, ResultRow, ResultStore
+from lwbench.results.store import SCHEMA_VERSION, ResultRow, ResultStore
 
 
 def _digest(path) -> str:

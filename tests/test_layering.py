@@ -51,13 +51,13 @@ def test_the_layering_rule_catches_a_loader_that_reaches_into_core(tmp_path):
     example.mkdir(parents=True)
     (example / "pyproject.toml").write_text("[project]\nname = 'lwbench-bad-loader'\n")
     (example / "bad_loader.py").write_text(
-        "from lwbench.derive import derive_sensor\nfrom lwbench.scan_picking import pick_scans\n"
+        "from lwbench.sensors.derive import derive_sensor\nfrom lwbench.scan_picking import pick_scans\n"
         "from lwbench import Dataset, derive_sensor as ok\nfrom lwbench.io import read_point_file\n"
     )
     mods = graph_tool.example_modules(tmp_path)
     found = [line.split(": ", 1)[1] for line in graph_tool.breaches(mods)]
     assert [f.split(",")[0] for f in found] == [
-        "bad_loader imports lwbench.derive", "bad_loader imports lwbench.scan_picking",
+        "bad_loader imports lwbench.sensors.derive", "bad_loader imports lwbench.scan_picking",
     ]
 
 
@@ -91,7 +91,8 @@ def test_no_metric_id_is_written_into_the_board_the_report_or_the_gates():
     from lwbench.registry import get_registry
 
     ids = set(get_registry().metric_info())
-    board = ("lwbench.leaderboard", "lwbench.board_table", "lwbench.report", "lwbench.pytest_plugin", "lwbench.gates")
+    board = ("lwbench.results.leaderboard", "lwbench.results.board_table", "lwbench.results.report",
+             "lwbench.pytest_plugin", "lwbench.gates")
     for name in board:
         tree = ast.parse(MODULES[name].path.read_text())
         docstrings = {id(n.body[0].value) for n in ast.walk(tree)

@@ -17,12 +17,12 @@ from typer.testing import CliRunner
 
 from lwbench import DataWarning, get_sensor
 from lwbench.cli import app
-from lwbench.derive import METHOD_PRESET
 from lwbench.io import read_kitti_bin
-from lwbench.leaderboard import CAVEATS, build_leaderboard
-from lwbench.rd import curves_from_entries
 from lwbench.registry import get_registry
-from lwbench.store import SCHEMA_VERSION, ResultRow, ResultStore
+from lwbench.results.leaderboard import CAVEATS, build_leaderboard
+from lwbench.results.rd import curves_from_entries
+from lwbench.results.store import SCHEMA_VERSION, ResultRow, ResultStore
+from lwbench.sensors.derive import METHOD_PRESET
 
 runner = CliRunner()
 INFO = get_registry().metric_info()

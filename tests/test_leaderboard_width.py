@@ -13,11 +13,11 @@ import pytest
 from rich.console import Console
 from typer.testing import CliRunner
 
-from lwbench.board_table import board_columns, board_table, short_header, table_width
 from lwbench.cli import app, output
-from lwbench.leaderboard import build_leaderboard
 from lwbench.registry import get_registry
-from lwbench.store import ResultRow, ResultStore
+from lwbench.results.board_table import board_columns, board_table, short_header, table_width
+from lwbench.results.leaderboard import build_leaderboard
+from lwbench.results.store import ResultRow, ResultStore
 
 INFO = get_registry().metric_info()
 TASK = ("ate_rmse", "occ_iou")  # the localization and occupancy metrics' headline ids

@@ -385,9 +385,9 @@ def test_no_return_copies_far_from_the_origin_are_left_out_of_the_derived_sensor
     from typer.testing import CliRunner
 
     from lwbench.cli import app
-    from lwbench.derive import derive_sensor
-    from lwbench.leaderboard import build_leaderboard
-    from lwbench.store import ResultStore
+    from lwbench.results.leaderboard import build_leaderboard
+    from lwbench.results.store import ResultStore
+    from lwbench.sensors.derive import derive_sensor
     from lwbench.synthetic import NUSCENES_NO_RETURN
 
     (tmp_path / "scans").mkdir()

@@ -23,10 +23,10 @@ from lwbench import (
 )
 from lwbench.cli import app
 from lwbench.registry import new_registry
+from lwbench.results.store import ResultStore
 from lwbench.run import DatasetSpec, plan_run
 from lwbench.run.config import read_run_file
 from lwbench.run.runner import Runner  # the internal under test
-from lwbench.store import ResultStore
 
 
 class PassCodec(RepresentationCodec):

@@ -22,12 +22,12 @@ from lwbench import (
     step_for_rmsd,
 )
 from lwbench.cli import app
-from lwbench.leaderboard import build_leaderboard
 from lwbench.noise_floor import FloorIds, draw_floor, entry_floor, floor_lines, print_floor
 from lwbench.plotting import pyplot
 from lwbench.registry import get_registry
+from lwbench.results.leaderboard import build_leaderboard
+from lwbench.results.store import ResultStore
 from lwbench.run import DatasetRequest, RunRequest, Study
-from lwbench.store import ResultStore
 from lwbench.testing import tunnel_scan
 
 
@@ -176,7 +176,7 @@ def test_rows_carry_the_floor_inputs_and_rd_prints_the_floor(store):
 
 @pytest.mark.heavy
 def test_the_report_draws_the_floor_on_every_rd_plot(store, tmp_path, monkeypatch):
-    import lwbench.report as report
+    import lwbench.results.report as report
 
     labels: dict[str, list[str]] = {}
     real_save = report.save_png_svg
@@ -243,7 +243,7 @@ def test_a_plot_where_every_point_is_exact_is_left_out_not_drawn_empty(store, tm
     # sweep whose points are all exact or undefined there.
     import warnings
 
-    import lwbench.report as report
+    import lwbench.results.report as report
 
     exact = [e for e in _entries(store) if e.codec == "raw"]
     assert exact and all(e.value("range_rmsd") == 0 for e in exact)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from lwbench.metric import HIGHER, LOWER
-from lwbench.rd import Curve, Point, RDError, bd_distortion, bd_rate, pareto_front
+from lwbench.results.rd import Curve, Point, RDError, bd_distortion, bd_rate, pareto_front
 
 
 def _curve(rates, dists, better=LOWER, codec="c") -> Curve:

@@ -11,8 +11,8 @@ import pytest
 from typer.testing import CliRunner
 
 from lwbench.cli import app
-from lwbench.rd import curves_from_entries, summarise
 from lwbench.registry import get_registry
+from lwbench.results.rd import curves_from_entries, summarise
 
 
 @dataclass

@@ -21,7 +21,7 @@ from typer.testing import CliRunner
 
 from lwbench.cli import app
 from lwbench.registry import get_registry
-from lwbench.store import ResultStore
+from lwbench.results.store import ResultStore
 
 #: ``gmm`` fits K=200 full covariances by EM on all 17k-125k points: 10-70 s per scan, and the
 #: runner encodes the first frame twice (warm-up, then timed).

@@ -79,9 +79,9 @@ def _wide_board_page(tmp_path: Path) -> Path:
     """A board as wide as a real sweep makes it: two datasets, VSGP labels with four parameters
     off their defaults, every default column filled, and long flags (issue 33: such a board ran
     past a 1,400 px window)."""
-    from lwbench.leaderboard import LeaderboardEntry
     from lwbench.registry import get_registry
-    from lwbench.report import _STYLE, _table
+    from lwbench.results.leaderboard import LeaderboardEntry
+    from lwbench.results.report import _STYLE, _table
 
     info = get_registry().metric_info()
     cols = [i for i, m in info.items() if m.default or getattr(m, "role", "") == "rate"]

@@ -1,7 +1,7 @@
 """Issue 23: the HTML report's click-sort keeps the board's order -- flagged rows last, as the
 terminal's table -- instead of a second one of its own.
 
-The page's sort function (``lwbench.report.BOARD_ORDER_JS``) runs under node on the rows the page
+The page's sort function (``lwbench.results.report.BOARD_ORDER_JS``) runs under node on the rows the page
 holds (read back from its HTML), and every click on a metric column, in either direction, must
 give the order ``build_leaderboard(sort=that id, descending=...)`` gives: per dataset, rows with
 a quality flag after the others, missing values last, then the values, then the label."""
@@ -15,10 +15,10 @@ from html.parser import HTMLParser
 
 import pytest
 
-from lwbench.leaderboard import build_leaderboard
 from lwbench.registry import get_registry
-from lwbench.report import BOARD_ORDER_JS, write_report
-from lwbench.store import ResultRow, ResultStore
+from lwbench.results.leaderboard import build_leaderboard
+from lwbench.results.report import BOARD_ORDER_JS, write_report
+from lwbench.results.store import ResultRow, ResultStore
 
 NODE = shutil.which("node")
 REGISTRY = get_registry()

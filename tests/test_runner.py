@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from lwbench import Dataset, Frame, Param, RepresentationCodec, get_sensor, hookimpl
-from lwbench.leaderboard import build_leaderboard
 from lwbench.registry import new_registry
+from lwbench.results.leaderboard import build_leaderboard
+from lwbench.results.store import ResultStore
 from lwbench.run import DatasetSpec, RunPlan, expand_codec_configs
 from lwbench.run.runner import Runner  # the internal under test
-from lwbench.store import ResultStore
 
 CALLS: list[int] = []
 

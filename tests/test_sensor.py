@@ -80,7 +80,7 @@ def test_ouster_metadata_gives_its_own_beam_table(real_data):
 
 
 def test_every_preset_has_a_range_noise_from_its_datasheet_and_a_source():
-    from lwbench.sensor_specs import DERIVED_RANGE_NOISE_M, SENSOR_SPECS
+    from lwbench.sensors.specs import DERIVED_RANGE_NOISE_M, SENSOR_SPECS
 
     assert set(SENSOR_SPECS) == set(SENSOR_PRESETS)
     for name, spec in SENSOR_SPECS.items():

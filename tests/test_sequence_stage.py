@@ -13,10 +13,10 @@ import pytest
 
 from lwbench import MetricId, SequenceEvaluation, SequenceMetric
 from lwbench.registry import get_registry
+from lwbench.results.store import ResultStore
 from lwbench.run import DatasetSpec, RunPlan, expand_codec_configs
 from lwbench.run.record import DECODED, PAYLOAD
 from lwbench.run.runner import Runner  # the internal under test
-from lwbench.store import ResultStore
 from lwbench.testing import ConformanceError, check_metric_streams
 
 SIM = DatasetSpec("sim", {"frames": 5, "seed": 3})

@@ -9,7 +9,7 @@ import sqlite3
 import pytest
 
 from lwbench.errors import StoreError
-from lwbench.store import SCHEMA_VERSION, ResultRow, ResultStore, is_results_store
+from lwbench.results.store import SCHEMA_VERSION, ResultRow, ResultStore, is_results_store
 
 
 def _row(frame: int = 0, **kw) -> ResultRow:
@@ -108,7 +108,7 @@ def test_a_store_from_a_newer_lwbench_is_refused(tmp_path):
 def test_decoded_clouds_are_files_beside_the_store_content_addressed_and_compressed(tmp_path):
     import numpy as np
 
-    from lwbench.artifacts import CloudFiles, pack_array, unpack_array
+    from lwbench.results.artifacts import CloudFiles, pack_array, unpack_array
 
     rng = np.random.default_rng(0)
     cloud = (rng.normal(0, 10, (5000, 3))).astype(np.float32)

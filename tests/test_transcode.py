@@ -19,10 +19,10 @@ from typer.testing import CliRunner
 from lwbench import DataFormatError, Frame, PayloadError, SensorModel, codec_class
 from lwbench.cli import app
 from lwbench.io import read_point_file, write_kitti_sequence
-from lwbench.leaderboard import build_leaderboard
 from lwbench.registry import get_registry
+from lwbench.results.leaderboard import build_leaderboard
+from lwbench.results.store import ResultStore
 from lwbench.run.record import DECODED, PAYLOAD
-from lwbench.store import ResultStore
 from lwbench.streamfile import open_payloads
 from lwbench.testing import room_scan
 from lwbench.transcode import decoded_frames, write_pcd, write_ply

@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import math
 
-from lwbench.leaderboard import build_leaderboard
 from lwbench.noise_floor import (
     FloorIds,
     entry_floor,
@@ -30,7 +29,8 @@ from lwbench.noise_floor import (
     step_for_rmsd,
 )
 from lwbench.registry import get_registry
-from lwbench.store import ResultStore
+from lwbench.results.leaderboard import build_leaderboard
+from lwbench.results.store import ResultStore
 
 
 def _fmt(v: float | None, spec: str) -> str:

@@ -378,11 +378,11 @@ def _child(conn, parent: int, ceiling_mb: int, sensors: list[dict]) -> None:
     enter_child(parent)
     import torch
 
-    from lwbench.catalog import SensorCatalog
     from lwbench.errors import PayloadError
     from lwbench.payload import Payload
     from lwbench.registry import get_registry
-    from lwbench.sensor import SensorModel
+    from lwbench.sensors.catalog import SensorCatalog
+    from lwbench.sensors.model import SensorModel
 
     torch.set_num_threads(1)
     reg = get_registry()

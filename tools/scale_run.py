@@ -43,8 +43,8 @@ def phase_seconds(log: str) -> dict[str, float]:
 
 def payload_bytes(store: Path) -> tuple[int, int]:
     """(bytes of every stored payload, bytes of the gallery clouds) of a store."""
+    from lwbench.results.store import ResultStore
     from lwbench.run.record import DECODED, PAYLOAD
-    from lwbench.store import ResultStore
 
     payloads = gallery = 0
     with ResultStore(store, readonly=True) as results:

@@ -33,7 +33,7 @@ from lwbench.errors import DataFormatError, LwbenchError, MissingDependencyError
 from lwbench.frame import Frame
 from lwbench.io import SENSOR_FILE, ScanArrays, read_sensor_file
 from lwbench.params import Param
-from lwbench.sensor import SENSOR_PRESETS, SensorModel, get_sensor
+from lwbench.sensors.model import SENSOR_PRESETS, SensorModel, get_sensor
 
 from .cloud import cloud_arrays
 from .tf import TransformBuffer, matrix
@@ -134,7 +134,7 @@ class BagDataset(Dataset):
         if not self.path.exists():
             raise DataFormatError(f"rosbag: {self.path} does not exist")
         self._cursor: tuple[Any, Iterator, int] | None = None  # (reader, messages, next index)
-        self._derivation: Any = None  # the lwbench.derive.Derivation, when the sensor was derived
+        self._derivation: Any = None  # the lwbench.sensors.derive.Derivation, when the sensor was derived
         reader = open_reader(self.path)
         try:
             self.topic, conns = self._pick_topic(reader)
@@ -292,7 +292,7 @@ class BagDataset(Dataset):
             if (folder / SENSOR_FILE).is_file():
                 self._sensor_source = f"{SENSOR_FILE} beside the bag"
                 return read_sensor_file(folder / SENSOR_FILE)
-            from lwbench.derive import derive_sensor
+            from lwbench.sensors.derive import derive_sensor
 
             scan = self._scan(0)
             if len(scan.points) < 100:
@@ -396,7 +396,7 @@ class BagDataset(Dataset):
             if path.suffix.lower() not in BAG_SUFFIXES or not path.is_file():
                 return False
             if path.suffix.lower() == ".db3":
-                from lwbench.store import is_results_store
+                from lwbench.results.store import is_results_store
 
                 return not is_results_store(path)
             return True

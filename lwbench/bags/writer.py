@@ -18,7 +18,7 @@ import numpy as np
 
 from lwbench.errors import DataFormatError, ParameterError
 from lwbench.frame import Frame
-from lwbench.sensor import SensorModel
+from lwbench.sensors.model import SensorModel
 
 from .cloud import cloud_layout
 from .reader import POINTCLOUD2, SENSOR_TOPIC, STRING, TF_MESSAGE, rosbags_module

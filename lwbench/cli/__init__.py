@@ -13,7 +13,7 @@ One module per command group, read in any order:
 
 Commands only parse words and print: a run is a :class:`lwbench.run.RunRequest` (the same one a
 run file and a gate fill) planned and run by :class:`lwbench.run.Study`; the board is
-:func:`lwbench.leaderboard.build_leaderboard`.
+:func:`lwbench.results.leaderboard.build_leaderboard`.
 """
 
 from __future__ import annotations

@@ -40,8 +40,8 @@ def leaderboard(
     min_coverage: MinCoverage = None,
 ) -> None:
     """Aggregate stored rows (mean, std, median, p95 per codec configuration)."""
-    from lwbench.leaderboard import build_leaderboard, present_columns, to_csv, to_json, to_markdown
-    from lwbench.store import ResultStore
+    from lwbench.results.leaderboard import build_leaderboard, present_columns, to_csv, to_json, to_markdown
+    from lwbench.results.store import ResultStore
 
     _choice(format, ("table", "md", "csv", "json"), "--format")
     path = _store(store)
@@ -86,9 +86,9 @@ def rd(
 ) -> None:
     """Rate-distortion from the sweep points in the store: each codec's curve, the Pareto front,
     values at equal rate / distortion (interpolated, never extrapolated) and BD-rate."""
-    from lwbench.leaderboard import build_leaderboard, check_metric_ids
-    from lwbench.rd import curves_from_entries, default_axes, summarise
-    from lwbench.store import ResultStore
+    from lwbench.results.leaderboard import build_leaderboard, check_metric_ids
+    from lwbench.results.rd import curves_from_entries, default_axes, summarise
+    from lwbench.results.store import ResultStore
 
     _choice(format, ("table", "json"), "--format")
     reg = registry()
@@ -162,7 +162,7 @@ def report(
         help="Run this TOML study first (cached rows are reused), then report it.", rich_help_panel=RESULTS)] = None,
 ) -> None:
     """Write a self-contained HTML report: sortable leaderboard, RD curves, runtime, a gallery."""
-    from lwbench.report import write_report
+    from lwbench.results.report import write_report
 
     writable_folder(out)
     reg = registry()

@@ -54,7 +54,7 @@ def progress():
 
 def wanted_columns(columns: str | None, available) -> tuple[str, ...] | None:
     """``--columns a,b``: the ids, each checked (``None``: the default columns)."""
-    from lwbench.leaderboard import check_metric_ids
+    from lwbench.results.leaderboard import check_metric_ids
 
     if not columns:
         return None
@@ -66,10 +66,10 @@ def wanted_columns(columns: str | None, available) -> tuple[str, ...] | None:
 
 
 def print_board(entries, sort: str, wanted: tuple[str, ...] | None, info) -> None:
-    """The board in the terminal (:mod:`lwbench.board_table`): never folds a number -- columns
+    """The board in the terminal (:mod:`lwbench.results.board_table`): never folds a number -- columns
     that do not fit are left out (and named), so read a wide board with --columns or --format md."""
-    from lwbench.board_table import board_columns, board_table, flag_notes
-    from lwbench.leaderboard import short_dataset_labels
+    from lwbench.results.board_table import board_columns, board_table, flag_notes
+    from lwbench.results.leaderboard import short_dataset_labels
 
     table, dropped = board_table(entries, board_columns(entries, sort, info, wanted), info, sort=sort,
                                  width=console.width or 200)

@@ -83,10 +83,10 @@ def run(
         help="Ray cluster address (--executor ray; default: start a local Ray).", rich_help_panel=EXECUTION)] = None,
 ) -> None:
     """Evaluate codecs on a dataset; every result lands in the store; print the leaderboard."""
-    from lwbench.leaderboard import build_leaderboard, check_metric_ids
+    from lwbench.results.leaderboard import build_leaderboard, check_metric_ids
+    from lwbench.results.store import ResultStore
     from lwbench.run import RunRequest, Study
     from lwbench.run.config import read_run_file
-    from lwbench.store import ResultStore
 
     reg = registry()
     options = {"retry_failed": retry_failed, "force": force, "isolate": isolate, "memory_mb": memory_limit,
@@ -125,7 +125,7 @@ def run(
 
 def board_sort(info) -> str:
     """The metric a board is sorted by when ``--sort`` is not given."""
-    from lwbench.leaderboard import headline_metric
+    from lwbench.results.leaderboard import headline_metric
 
     return headline_metric(info)
 

@@ -85,7 +85,7 @@ def class_ref(cls: type) -> str:
 
 def _named_sensor(data: bytes | None, sensors):
     from lwbench.payload import Payload
-    from lwbench.sensor import SensorModel
+    from lwbench.sensors.model import SensorModel
 
     try:
         wire = Payload.from_bytes(data).meta.get("sensor")
@@ -143,9 +143,9 @@ def _serve(conn, parent: int, ceiling_mb: int) -> None:  # the child
     enter_child(parent)
     import torch
 
-    from lwbench.catalog import SensorCatalog
     from lwbench.errors import PayloadError
-    from lwbench.sensor import SensorModel
+    from lwbench.sensors.catalog import SensorCatalog
+    from lwbench.sensors.model import SensorModel
 
     torch.set_num_threads(1)
     cap_memory(ceiling_mb)  # set before any decode: a bomb fails instead of eating the machine

@@ -7,7 +7,7 @@ wrong record size does not fail -- it shifts columns into each other: KITTI fram
 intensity 0 and shuffled points read as 12-byte records gave 166,224 "points" with z from -77 to
 +77 m. So each reading the size allows is judged by the geometry it yields:
 
-- **hard limits**: coordinates within :data:`~lwbench.sensor_specs.MAX_RANGE_M`, an intensity
+- **hard limits**: coordinates within :data:`~lwbench.sensors.specs.MAX_RANGE_M`, an intensity
   column that is finite and not negative, a ring column of whole numbers in ``[0, 256)``;
 - **columns unlike each other**: under a wrong record size every column holds each true column
   in turn (x, then y, then z, then intensity ...), so all columns have *one* distribution -- z
@@ -32,7 +32,7 @@ import numpy as np
 
 from lwbench.errors import DataFormatError
 from lwbench.io.scan_arrays import NUSCENES_SUFFIX, ScanArrays
-from lwbench.sensor_specs import MAX_BEAMS, MAX_RANGE_M
+from lwbench.sensors.specs import MAX_BEAMS, MAX_RANGE_M
 
 __all__ = ["read_kitti_bin", "BIN_LAYOUTS", "FIELDS_HINT"]
 

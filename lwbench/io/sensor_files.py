@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 
 from lwbench.errors import DataFormatError
-from lwbench.sensor import MIN_AZIMUTH_STEP_DEG, SensorModel
+from lwbench.sensors.model import MIN_AZIMUTH_STEP_DEG, SensorModel
 
 __all__ = ["read_ouster_metadata", "read_sensor_file", "SENSOR_FILE"]
 

@@ -9,7 +9,7 @@ with :mod:`.execute` (where evaluations run) and :mod:`.runner` (the four in ord
 internal). A :class:`~.request.RunRequest` (what the command line, a run file -- :mod:`.config` --
 or a gate asks for) becomes plans and a :class:`~.request.Study` in :mod:`.request`, whose
 :meth:`~.request.Study.run` is the one entry point every front end uses. The leaderboard
-(:mod:`lwbench.leaderboard`) reads what they stored.
+(:mod:`lwbench.results.leaderboard`) reads what they stored.
 """
 
 from .evaluate import Evaluator, FrameResult

@@ -38,12 +38,12 @@ from dataclasses import dataclass, field
 from multiprocessing.connection import wait
 from pathlib import Path
 
-from lwbench.artifacts import CloudFiles
 from lwbench.dataset import Dataset
 from lwbench.errors import LwbenchError, MissingDependencyError, WorkerError
 from lwbench.measure import Stopwatch
 from lwbench.metric import SequenceEvaluation
 from lwbench.registry import Registry, registry_from_recipe
+from lwbench.results.artifacts import CloudFiles
 from lwbench.sandbox import Sandbox, SandboxError, cap_memory, enter_child, how_it_died
 
 from .evaluate import Evaluator, FrameResult, decoded_cloud

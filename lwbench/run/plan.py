@@ -29,7 +29,7 @@ from lwbench.dataset import Dataset
 from lwbench.errors import DataFormatError, LwbenchError, ParameterError, PluginError
 from lwbench.params import Param, config_label, resolve_params
 from lwbench.registry import Registry
-from lwbench.store import canonical_json
+from lwbench.results.store import canonical_json
 
 __all__ = [
     "CodecConfig",

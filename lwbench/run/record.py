@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from lwbench.registry import Registry
-from lwbench.store import ResultRow, ResultStore, environment_versions, machine_description
+from lwbench.results.store import ResultRow, ResultStore, environment_versions, machine_description
 
 from .evaluate import FrameResult
 from .plan import CodecConfig

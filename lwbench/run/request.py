@@ -19,7 +19,7 @@ from typing import Any
 from lwbench.dataset import Dataset
 from lwbench.errors import MissingDependencyError, ParameterError
 from lwbench.registry import Registry
-from lwbench.store import ResultStore
+from lwbench.results.store import ResultStore
 
 from .execute import DEFAULT_TIMEOUT_S
 from .plan import Grids, RunPlan, parse_assignments, parse_metric_params, parse_sweeps, plan_run, preflight

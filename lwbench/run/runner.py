@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from lwbench.dataset import Dataset
 from lwbench.errors import ParameterError
 from lwbench.registry import Registry, get_registry
-from lwbench.store import ResultRow, ResultStore
+from lwbench.results.store import ResultRow, ResultStore
 
 from .evaluate import Evaluator
 from .execute import DEFAULT_TIMEOUT_S, PRELOAD, FrameTask, InProcessExecutor, ProcessExecutor, Worker

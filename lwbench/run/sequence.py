@@ -25,7 +25,7 @@ from typing import Any
 from lwbench.dataset import Dataset
 from lwbench.errors import LwbenchError
 from lwbench.metric import SequenceMetric
-from lwbench.store import ResultRow, ResultStore
+from lwbench.results.store import ResultRow, ResultStore
 
 from .plan import CodecConfig, DatasetSpec
 from .record import PAYLOAD, RowFactory, record_frame

@@ -12,8 +12,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from lwbench.artifacts import CloudFiles
 from lwbench.errors import LwbenchError, StoreError
+from lwbench.results.artifacts import CloudFiles
 
 from .evaluate import FrameResult
 from .plan import CodecConfig, DatasetSpec

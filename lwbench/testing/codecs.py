@@ -17,7 +17,7 @@ from lwbench.codec import Codec, SelectionCodec
 from lwbench.errors import LwbenchError, PayloadError
 from lwbench.frame import Frame
 from lwbench.payload import Payload
-from lwbench.sensor import get_sensor
+from lwbench.sensors.model import get_sensor
 from lwbench.synthetic import check_frames
 
 from .base import check, fail

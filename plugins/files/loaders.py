@@ -136,7 +136,7 @@ def _choose_sensor(value: str, folder: Path, first: Path, read, rate_hz: float,
             )
         try:
             d = derive_sensor(scan.points, ring=scan.ring, rate_hz=rate_hz, name="derived")
-        except ValueError as exc:  # no plausible sensor fits the scan (lwbench.sensor's bounds)
+        except ValueError as exc:  # no plausible sensor fits the scan (lwbench.sensors.model's bounds)
             raise DataFormatError(f"{first}: no sensor model can be derived from this scan ({exc}); "
                                   "pass --dataset-param sensor=<preset or sensor.json path>") from None
         if max_range is not None and max_range > d.sensor.min_range:

@@ -17,9 +17,9 @@ from lwbench_plugins.files import KittiDataset
 
 from lwbench import CodecKind, Evaluation
 from lwbench.registry import get_registry
+from lwbench.results.store import ResultStore
 from lwbench.run import DatasetSpec, RunPlan, expand_codec_configs
 from lwbench.run.runner import Runner  # the internal under test
-from lwbench.store import ResultStore
 
 pytestmark = pytest.mark.benchmark
 

@@ -5,7 +5,7 @@ computed, readers (``lwbench leaderboard``) never block the writer, and a re-run
 key already stored. Each row carries its provenance -- lwbench, plugin and library versions,
 machine, seed -- because a number nobody can reproduce is worth little. The arrays a row keeps
 (decoded clouds, the originals a report shows) are files beside the store, content-addressed
-and compressed (:mod:`lwbench.artifacts`); the store holds their names.
+and compressed (:mod:`lwbench.results.artifacts`); the store holds their names.
 """
 
 from __future__ import annotations
@@ -24,8 +24,8 @@ from typing import Any
 
 import numpy as np
 
-from lwbench.artifacts import CloudFiles, pack_array, unpack_array
 from lwbench.errors import StoreError
+from lwbench.results.artifacts import CloudFiles, pack_array, unpack_array
 
 __all__ = ["ResultStore", "ResultRow", "evaluation_key", "result_key", "environment_versions", "is_results_store"]
 
@@ -479,7 +479,7 @@ _DEFAULTS = {"plugin_version": "''", "scoring": "'[]'", "sensor_guessed": "0"}
 
 
 def _unpack_array(blob: bytes) -> np.ndarray | None:
-    """A blob in the store: :func:`lwbench.artifacts.pack_array` bytes (in-memory stores).
+    """A blob in the store: :func:`lwbench.results.artifacts.pack_array` bytes (in-memory stores).
     Stores of schema 2 and before kept zstd ``.npy`` blobs here; 0.2 no longer reads them
     (issue 34: no 0.1 compatibility shims) -- such an array counts as not kept, which makes a
     run re-evaluate what needs it (the sequence stage re-decodes a frame whose payload is gone)

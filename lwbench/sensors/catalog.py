@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Iterator
 
-from lwbench.sensor import SensorModel
+from lwbench.sensors.model import SensorModel
 
 __all__ = ["SensorCatalog"]
 

@@ -30,8 +30,8 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from lwbench.leaderboard import FLAG_NOTES, LeaderboardEntry, present_columns, short_dataset_labels, table_rows
 from lwbench.metric import MetricId
+from lwbench.results.leaderboard import FLAG_NOTES, LeaderboardEntry, present_columns, short_dataset_labels, table_rows
 
 __all__ = ["board_columns", "board_table", "board_title", "flag_notes", "short_header"]
 

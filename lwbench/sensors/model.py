@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from lwbench.geometry import spherical, unit_directions
-from lwbench.sensor_specs import (
+from lwbench.sensors.specs import (
     DERIVED_RANGE_NOISE_M,
     MAX_BEAMS,
     MAX_RANGE_M,
@@ -67,7 +67,7 @@ class SensorModel:
     ``elevations_deg`` is the beam table sorted ascending (row 0 = lowest beam). Non-uniform
     tables (HDL-64E, OS1) are supported: a point is assigned to the nearest beam.
     ``range_noise_m`` is the 1-sigma range noise (metres): a preset's from its datasheet
-    (:mod:`lwbench.sensor_specs` says how each was read), else :data:`DERIVED_RANGE_NOISE_M`.
+    (:mod:`lwbench.sensors.specs` says how each was read), else :data:`DERIVED_RANGE_NOISE_M`.
     It is not geometry: :attr:`sensor_id` leaves it out, so ids of older models stay valid.
     """
 
@@ -257,7 +257,7 @@ class SensorModel:
         ``{"id": sensor_id}`` (~25 bytes). A receiver needs a sensor's table once, not in every
         frame -- a derived 64-beam table is ~1.5 kB of JSON, which per frame would be a fifth of
         a VSGP payload -- so the table travels once per stream and the receiver hands its decoder
-        the tables it was told (:class:`lwbench.catalog.SensorCatalog`)."""
+        the tables it was told (:class:`lwbench.sensors.catalog.SensorCatalog`)."""
         preset = SENSOR_PRESETS.get(self.name)
         if preset is not None and preset == self:
             return {"preset": self.name}
@@ -266,7 +266,7 @@ class SensorModel:
     @classmethod
     def from_wire(cls, d: dict, catalog=None) -> SensorModel:
         """Inverse of :meth:`to_wire` (a full table, as older payloads carried, also reads); an
-        id is looked up in ``catalog`` (a :class:`lwbench.catalog.SensorCatalog`: the tables the
+        id is looked up in ``catalog`` (a :class:`lwbench.sensors.catalog.SensorCatalog`: the tables the
         receiver was told), and nowhere else.
 
         Raises :class:`UnknownSensorError` for an id the receiver was not told about and
@@ -309,8 +309,8 @@ class SensorModel:
         name: str = "derived",
         bin_deg: float = 0.02,
     ) -> SensorModel:
-        """Estimate a sensor model from one real scan (:func:`lwbench.beam_table.estimate_sensor`;
-        :func:`lwbench.derive.derive_sensor` gives the same model and says *how* it was derived).
+        """Estimate a sensor model from one real scan (:func:`lwbench.sensors.beam_table.estimate_sensor`;
+        :func:`lwbench.sensors.derive.derive_sensor` gives the same model and says *how* it was derived).
 
         The beam table comes from the ``ring`` field when given, else from the point order
         (ring-major or firing-major), else -- with a :class:`~lwbench.DataWarning`, as a guess --
@@ -319,8 +319,8 @@ class SensorModel:
         """
         import warnings
 
-        from lwbench.beam_table import estimate_sensor
         from lwbench.errors import DataWarning
+        from lwbench.sensors.beam_table import estimate_sensor
 
         estimate = estimate_sensor(points, ring=ring, rate_hz=rate_hz, name=name, bin_deg=bin_deg)
         for message in estimate.warnings:

@@ -7,7 +7,7 @@ it found 81 "beams" on a shuffled KITTI scan, 105 on an OS1-64. So the elevation
 put back into the sensor's frame where the scan's frame is tilted against it or its lasers sit
 above its origin (:func:`level`), then three rules, the first that holds decides:
 
-1. **a preset fits** (:data:`~lwbench.sensor_specs.SENSOR_SPECS`): after a common elevation
+1. **a preset fits** (:data:`~lwbench.sensors.specs.SENSOR_SPECS`): after a common elevation
    offset of at most :data:`MAX_OFFSET_DEG` (mounting, calibration) and per-beam moves of at most
    :data:`MAX_BEAM_SHIFT` of the local spacing (a unit's own calibration), the returns
    concentrate on the preset's beams -- their RMS distance to the nearest beam at most
@@ -23,12 +23,12 @@ above its origin (:func:`level`), then three rules, the first that holds decides
    own peak width are one, and so are neighbouring peaks whose returns rarely share an azimuth
    (one beam, its elevation drifting with range). The count is bounded by what the elevation
    resolution of the data supports -- fewer beams than the sensor has when its beams overlap;
-3. **no beam table** (no significant peak, more than :data:`~lwbench.sensor_specs.MAX_BEAMS`, or
+3. **no beam table** (no significant peak, more than :data:`~lwbench.sensors.specs.MAX_BEAMS`, or
    peaks that hold the returns no better than uniform elevations would, :data:`MAX_TABLE_SPREAD`:
    a rotating 2-D laser, a scanner with a continuous vertical pattern, beams blurred together): a
    uniform grid as fine as the data is dense -- about one return a cell, at most ``MAX_BEAMS`` rows.
 
-All three are guesses: the estimate (:mod:`lwbench.beam_table`) is not ``exact`` and the
+All three are guesses: the estimate (:mod:`lwbench.sensors.beam_table`) is not ``exact`` and the
 loaders flag the dataset (``sensor_guessed``).
 """
 
@@ -39,8 +39,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lwbench.beam_order import Reading, firings_per_turn
-from lwbench.sensor_specs import MAX_BEAMS, MAX_RAYS, MIN_AZIMUTH_STEP_DEG, SENSOR_SPECS
+from lwbench.sensors.beam_order import Reading, firings_per_turn
+from lwbench.sensors.specs import MAX_BEAMS, MAX_RAYS, MIN_AZIMUTH_STEP_DEG, SENSOR_SPECS
 
 __all__ = [
     "Guess",

@@ -45,7 +45,7 @@ import numpy as np
 from lwbench.errors import LwbenchError
 from lwbench.metric import HIGHER, LOWER, Guard, MetricId
 from lwbench.params import config_label
-from lwbench.store import ResultRow, ResultStore
+from lwbench.results.store import ResultRow, ResultStore
 
 __all__ = [
     "CAVEATS",

@@ -9,8 +9,8 @@ The rules, in order (the first that holds decides, and :class:`SensorEstimate` s
    The azimuth step comes from the points per ring: a driver that writes no-return markers writes one
    point per firing, so the densest ring's count is the firings a turn; without such markers
    the firings missing in the ring's gaps are added back;
-2. **ring-major / firing-major order** (:mod:`lwbench.beam_order`);
-3. a **guess** (:mod:`lwbench.beam_guess`): a preset's table that fits the elevations within a
+2. **ring-major / firing-major order** (:mod:`lwbench.sensors.beam_order`);
+3. a **guess** (:mod:`lwbench.sensors.beam_guess`): a preset's table that fits the elevations within a
    stated tolerance, else the beams the elevation histogram resolves, else (no beam structure at
    all) a uniform grid at the data's angular density.
 
@@ -27,9 +27,9 @@ from typing import Any
 
 import numpy as np
 
-from lwbench.beam_guess import METHOD_HISTOGRAM, METHOD_PRESET, METHOD_UNIFORM, guess_beams
-from lwbench.beam_order import Reading, angles, firing_major, firings_per_turn, ring_major, sweep_steps
-from lwbench.sensor_specs import DERIVED_RANGE_NOISE_M, MIN_AZIMUTH_STEP_DEG, NO_RETURN_RANGE_M, SENSOR_SPECS
+from lwbench.sensors.beam_guess import METHOD_HISTOGRAM, METHOD_PRESET, METHOD_UNIFORM, guess_beams
+from lwbench.sensors.beam_order import Reading, angles, firing_major, firings_per_turn, ring_major, sweep_steps
+from lwbench.sensors.specs import DERIVED_RANGE_NOISE_M, MIN_AZIMUTH_STEP_DEG, NO_RETURN_RANGE_M, SENSOR_SPECS
 
 __all__ = [
     "SensorEstimate",

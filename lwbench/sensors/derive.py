@@ -1,7 +1,7 @@
 """Deriving a sensor model from one scan, when nothing on disk says what the sensor is -- and
 saying how it was derived.
 
-The reading itself is :func:`lwbench.beam_table.estimate_sensor` (ring field, point order, or a
+The reading itself is :func:`lwbench.sensors.beam_table.estimate_sensor` (ring field, point order, or a
 guess: a preset that fits, the histogram's significant peaks, a uniform grid); this module wraps
 it in a :class:`Derivation` (the model, the rule that decided, whether it is ``exact`` or a
 guess -- what ``lwbench inspect`` shows and the loaders flag as ``sensor_guessed``), warns when it
@@ -17,7 +17,8 @@ from typing import Any
 
 import numpy as np
 
-from lwbench.beam_table import (
+from lwbench.errors import DataWarning
+from lwbench.sensors.beam_table import (
     EXACT_METHODS,
     METHOD_FIRING_MAJOR,
     METHOD_HISTOGRAM,
@@ -29,8 +30,7 @@ from lwbench.beam_table import (
     estimate_sensor,
     valid_returns,
 )
-from lwbench.errors import DataWarning
-from lwbench.sensor import SensorModel
+from lwbench.sensors.model import SensorModel
 
 __all__ = [
     "Derivation",

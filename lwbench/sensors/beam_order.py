@@ -11,7 +11,7 @@ ring a point is on:
 
 Each reading is checked before it is trusted (a plausible ring count, similar points per ring,
 rings ordered by elevation; for firings, one elevation per position); a reading that does not
-hold returns the reason (a string) instead, which :mod:`lwbench.derive` reports.
+hold returns the reason (a string) instead, which :mod:`lwbench.sensors.derive` reports.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from lwbench.sensor_specs import MAX_BEAMS
+from lwbench.sensors.specs import MAX_BEAMS
 
 __all__ = [
     "Reading",

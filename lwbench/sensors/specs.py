@@ -1,10 +1,10 @@
 """What real spinning LiDARs are: the bounds every sensor model must respect, and the published
 specs of the sensors lwbench knows by name.
 
-Plain data (no :class:`~lwbench.sensor.SensorModel` here), so that both the sensor model and the
-code that reads a sensor from a scan (:mod:`lwbench.beam_table`) can use it without importing
+Plain data (no :class:`~lwbench.sensors.model.SensorModel` here), so that both the sensor model and the
+code that reads a sensor from a scan (:mod:`lwbench.sensors.beam_table`) can use it without importing
 each other. :data:`SENSOR_SPECS` becomes :data:`lwbench.SENSOR_PRESETS`; a scan with no ring
-field and no usable order is matched against these beam tables (:mod:`lwbench.beam_guess`).
+field and no usable order is matched against these beam tables (:mod:`lwbench.sensors.beam_guess`).
 
 Each table says where it comes from. ``range_noise_m`` is the 1-sigma range noise: the datasheets
 state a range *accuracy* as "+-x cm" (Velodyne, Hesai: "typical"; HDL-64E/HDL-32E: "1 sigma"),

@@ -25,14 +25,14 @@ from pathlib import Path
 
 import numpy as np
 
-from lwbench.leaderboard import FLAG_NOTES, LeaderboardEntry, build_leaderboard, format_value, header_name
 from lwbench.metric import MetricId
 from lwbench.noise_floor import FloorIds, draw_floor
 from lwbench.plotting import pyplot, save_png_svg
-from lwbench.rd import curves_from_entries
 from lwbench.registry import Registry
+from lwbench.results.leaderboard import FLAG_NOTES, LeaderboardEntry, build_leaderboard, format_value, header_name
+from lwbench.results.rd import curves_from_entries
+from lwbench.results.store import ResultStore
 from lwbench.run.record import DECODED, ORIGINAL, original_key
-from lwbench.store import ResultStore
 
 __all__ = ["BOARD_ORDER_JS", "write_report", "ids_with_role"]
 
@@ -241,7 +241,7 @@ def _table(entries: list[LeaderboardEntry], info: Mapping[str, MetricId]) -> str
             f'<tbody>{"".join(rows)}</tbody></table></div>')
 
 
-# The order a click on column ``col`` gives -- the board's own (lwbench.leaderboard's sort key):
+# The order a click on column ``col`` gives -- the board's own (lwbench.results.leaderboard's sort key):
 # dataset group, rows a quality flag ranks last after the others, missing values last, the
 # column's values in the clicked direction, then the configuration's label. A click on the
 # dataset column orders the groups. Pure, so tests run it under node.
