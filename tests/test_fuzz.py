@@ -5,7 +5,7 @@ decodes run in :class:`lwbench.fuzz.DecodeServer`'s child process, so a hang or 
 is a failed example (killed after a generous timeout, memory capped), not a hung test run. The
 contract: only ``PayloadError`` escapes, within a second of CPU and 512 MB. A failure is shrunk
 to a small case and printed as hex. The conformance kit's ``fuzz`` check
-(test_codec_conformance.py) adds a seeded campaign per codec; tools/fuzz_codecs.py runs the long
+(test_codec_conformance.py) adds a seeded campaign per codec; ``lwbench fuzz`` runs the long
 ones behind docs/hostile.md.
 """
 

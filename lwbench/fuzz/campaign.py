@@ -13,6 +13,7 @@ import random
 import time
 import zlib
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -129,9 +130,11 @@ class FuzzReport:
 
 
 def fuzz_codec(codec_cls, params: dict | None = None, *, cases: int = 1000, seconds: float | None = None,
-               seed: int = 0, server: DecodeServer | None = None, seeds=None) -> FuzzReport:
+               seed: int = 0, server: DecodeServer | None = None, seeds=None,
+               on_case: Callable[[int], None] | None = None) -> FuzzReport:
     """A campaign against one codec: ``cases`` mutated payloads (fewer if ``seconds`` runs out),
-    decoded in a :class:`DecodeServer`; returns the counts."""
+    decoded in a :class:`DecodeServer`; returns the counts. ``on_case(done)`` is called after
+    each case (a progress bar)."""
     seeds = seed_payloads(codec_cls, params) if seeds is None else seeds
     report = FuzzReport(codec_cls.name)
     if not seeds:
@@ -150,6 +153,8 @@ def fuzz_codec(codec_cls, params: dict | None = None, *, cases: int = 1000, seco
             variant, data = seeds[i % len(seeds)]
             case = mutate(data, ch, bodies)
             report.add(server.decode(ref, variant, case, warm_with=data), case)
+            if on_case is not None:
+                on_case(i + 1)
     finally:
         if own:
             server.close()

@@ -25,7 +25,7 @@ from .base import check, fail
 # Its public names are exported, and listed, by lwbench.testing.
 
 #: The conformance kit's fuzz check: at most this many crafted payloads, for at most this long
-#: (tools/fuzz_codecs.py runs the long campaigns).
+#: (``lwbench fuzz`` runs the long campaigns).
 FUZZ_CASES = 400
 FUZZ_SECONDS = 3.0
 
