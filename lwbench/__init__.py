@@ -75,7 +75,7 @@ from lwbench.parallel import thread_budget
 from lwbench.params import Param
 from lwbench.payload import Payload
 from lwbench.points import POINT_ENCODINGS, pack_points, unpack_points
-from lwbench.resolve import codec_class, make_codec, open_dataset, sequence_metric
+from lwbench.resolve import codec_class, frame_metric, make_codec, open_dataset, sequence_metric
 from lwbench.sensors.catalog import SensorCatalog
 from lwbench.sensors.derive import Derivation, derive_sensor, outside_range_window, sensor_mismatch
 from lwbench.sensors.model import SENSOR_PRESETS, RangeImage, SensorModel, get_sensor
@@ -92,6 +92,7 @@ __all__ = [
     "Codec",
     "codec_class",
     "make_codec",
+    "frame_metric",
     "sequence_metric",
     "CodecKind",
     "compare_occupancy",

@@ -18,9 +18,9 @@ from typing import Any
 from lwbench.codec import Codec
 from lwbench.dataset import Dataset
 from lwbench.errors import PluginError
-from lwbench.metric import SequenceMetric
+from lwbench.metric import FrameMetric, SequenceMetric
 
-__all__ = ["codec_class", "make_codec", "open_dataset", "sequence_metric"]
+__all__ = ["codec_class", "frame_metric", "make_codec", "open_dataset", "sequence_metric"]
 
 
 def open_dataset(
@@ -67,4 +67,16 @@ def sequence_metric(name: str, params: Mapping[str, Any] | None = None) -> Seque
     metrics = get_registry().sequence_metrics
     if name not in metrics:
         raise PluginError(f"no sequence metric {name!r} is installed (installed: {', '.join(sorted(metrics))})")
+    return metrics[name](**dict(params or {}))
+
+
+def frame_metric(name: str, params: Mapping[str, Any] | None = None) -> FrameMetric:
+    """The installed frame metric of that name, configured with ``params``: its ``compute`` scores
+    one decoded cloud against its scan (an :class:`~lwbench.Evaluation`), as a run scores it --
+    a plugin command's own table uses the run's definitions; a clear error when it is not installed."""
+    from lwbench.registry import get_registry
+
+    metrics = get_registry().frame_metrics
+    if name not in metrics:
+        raise PluginError(f"no frame metric {name!r} is installed (installed: {', '.join(sorted(metrics))})")
     return metrics[name](**dict(params or {}))

@@ -349,7 +349,17 @@ class RangeMetric(FrameMetric):
         Param("tolerance", "float", 0.5, "pairing window half-width, in beam / azimuth spacings", low=0.01, high=10.0),
     )
 
-    def compute(self, ev: Evaluation) -> dict[str, float | None]:
+    def range_differences(self, ev: Evaluation) -> np.ndarray:
+        """``|p| - |q|`` (m) over the pairs, paired as :meth:`compute` pairs them: ``range_rmsd``
+        is their RMS, ``range_median`` the median of their magnitudes. For a look at where the
+        RMSD comes from (``lwbench vsgp-bench errors``: percentiles, the worst pairs' share)."""
+        p_range, q_range, partner, _, _ = self._pairs(ev)
+        paired = partner >= 0
+        return p_range[paired] - q_range[partner[paired]]
+
+    def _pairs(self, ev: Evaluation):
+        """Ranges of the original and decoded returns, each original's partner (``-1``: none),
+        whether each decoded return has an original in its window, and the decoded returns' coordinates."""
         sensor = ev.frame.sensor
         tol = self.config["tolerance"]
         # Exact duplicates are one return, in both clouds alike (nuScenes writes them, Draco merges
@@ -362,6 +372,11 @@ class RangeMetric(FrameMetric):
         q_coords, q_range = direction_coordinates(q_points, sensor)
         p_tree3d = ev.cached("point_tree", lambda: _point_tree(p_points[windowed_returns(p_points, p_coords, sensor)]))
         partner, near_p = match_returns(p_points, q_points, p_coords, q_coords, sensor, tol, p_tree, p_tree3d)
+        return p_range, q_range, partner, near_p, q_coords
+
+    def compute(self, ev: Evaluation) -> dict[str, float | None]:
+        sensor = ev.frame.sensor
+        p_range, q_range, partner, near_p, q_coords = self._pairs(ev)
         # Returns only: no-return points (nearer than the min range) are in neither count; a
         # return outside the table's margin counts, with no partner (and, decoded, as false).
         n_p = int(((p_range > 0) & (p_range >= sensor.min_range)).sum())
