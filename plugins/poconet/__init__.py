@@ -6,7 +6,9 @@ and the true observation-count labels it learns from.
 - :mod:`.network` / :mod:`.data` -- §III-C: RandLA-Net backbone, Global Feature Attention,
   siamese encoder, in plain PyTorch with SciPy k-d trees in the data pipeline;
 - :mod:`.train` -- ``lwbench train poconet`` (CPU or CUDA, resumable);
-- :mod:`.codec` -- the two selection codecs; the shipped weights are ``weights/``.
+- :mod:`.codec` -- the two selection codecs; the shipped weights are ``weights/``;
+- :mod:`.diagnose`, :mod:`.table_command` -- ``lwbench diagnose`` and ``lwbench poconet-table``
+  (Table I on held-out drives, docs/poconet.md §6).
 
 Heavy imports (torch, SciPy, Open3D) happen inside the functions that use them.
 """
@@ -27,7 +29,8 @@ def lwbench_codecs():
 
 @hookimpl
 def lwbench_register_commands(cli) -> None:
-    from . import commands, diagnose
+    from . import commands, diagnose, table_command
 
     commands.register(cli)
     diagnose.register(cli)
+    table_command.register(cli)

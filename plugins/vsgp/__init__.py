@@ -7,7 +7,8 @@ beam, posterior occupancy) plus its hyper-parameters; the base predicts the surf
 scan's own grid and drops cells whose predictive variance says "free space". With
 ``residual=TAU`` the surface becomes a predictor and a residual layer follows it (``residuals.py``):
 every return decoded within ``TAU``. See ``encoder.py`` / ``decoder.py`` for why each step is done
-the way it is and ``docs/vsgp.md`` for the measurements behind the defaults.
+the way it is and ``docs/vsgp.md`` for the measurements behind the defaults, which
+``lwbench vsgp-bench`` (``bench.py``) reproduces.
 """
 
 from __future__ import annotations
@@ -441,3 +442,10 @@ class VSGPCodec(RepresentationCodec):
 @hookimpl
 def lwbench_codecs() -> list[type[VSGPCodec]]:
     return [VSGPCodec]
+
+
+@hookimpl
+def lwbench_register_commands(cli) -> None:
+    from . import bench
+
+    bench.register(cli)
