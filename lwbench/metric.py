@@ -17,7 +17,7 @@ recomputes instead of being served from the cache, and rows scored two ways are 
 from __future__ import annotations
 
 import abc
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
@@ -42,6 +42,7 @@ __all__ = [
     "SequenceStep",
     "QUANTITIES",
     "ids_by_quantity",
+    "info_from_declarations",
 ]
 
 MetricValues = dict[str, float | None]
@@ -149,6 +150,35 @@ class MetricId(str):
         if self.guard is not None:
             out["guard"] = {k: v for k, v in self.guard.__dict__.items() if v not in (None, (), "")}
         return out
+
+
+def metric_id_from_description(d: Mapping[str, Any]) -> MetricId:
+    """The :class:`MetricId` a :meth:`MetricId.describe` dict describes (what a store keeps)."""
+    guard = d.get("guard")
+    if guard is not None:
+        guard = Guard(**{k: tuple(v) if isinstance(v, list) else v for k, v in guard.items()})
+    return MetricId(d["id"], d.get("unit", ""), d.get("better", ""), default=bool(d.get("default", False)),
+                    headline=bool(d.get("headline", False)), role=d.get("role", ""), quantity=d.get("quantity", ""),
+                    guard=guard)
+
+
+def _version_order(version: Any) -> tuple:
+    text = str(version)
+    return (0, int(text), "") if text.isdigit() else (1, 0, text)
+
+
+def info_from_declarations(declarations: Iterable[Mapping[str, Any]]) -> dict[str, MetricId]:
+    """Every metric id with its declaration, in board order (each metric's ``order``, then its
+    name; ids as the metric declares them), from metric declarations -- a metric's
+    :meth:`describe` plus its ``order``, as a registry has them or a store kept them. Of two
+    versions of one metric the newer one counts."""
+    newest: dict[str, Mapping[str, Any]] = {}
+    for d in declarations:
+        old = newest.get(d["name"])
+        if old is None or _version_order(d.get("version", "")) >= _version_order(old.get("version", "")):
+            newest[d["name"]] = d
+    ordered = sorted(newest.values(), key=lambda d: (d.get("order", 100), d["name"]))
+    return {i["id"]: metric_id_from_description(i) for d in ordered for i in d.get("ids", [])}
 
 
 def ids_by_quantity(info: Mapping[str, Any]) -> dict[str, str]:
@@ -363,6 +393,12 @@ class _Metric:
     def signature(self) -> list:
         """``[name, version, params, settings]``: everything that decides this metric's values."""
         return [self.name, self.version, self.config, self.settings]
+
+    @classmethod
+    def declaration(cls) -> dict:
+        """What a store keeps of this metric (:meth:`describe` and ``order``): enough to rank,
+        sort and flag its ids where the metric is not installed."""
+        return {**cls.describe(), "order": cls.order}
 
     @classmethod
     def describe(cls) -> dict:

@@ -216,6 +216,11 @@ class Registry:
         )
         return {str(i): as_metric_id(i) for m in metrics for i in m.ids}
 
+    def metric_declarations(self) -> list[dict]:
+        """Each installed metric's declaration (``describe()`` and ``order``): what a store keeps
+        so that its board reads the same where a metric plugin is missing."""
+        return [m.declaration() for m in (*self.frame_metrics.values(), *self.sequence_metrics.values())]
+
     def default_columns(self) -> tuple[str, ...]:
         return tuple(i for i, info in self.metric_info().items() if info.default)
 

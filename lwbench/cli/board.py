@@ -11,7 +11,7 @@ import typer
 from lwbench.errors import LwbenchError, ParameterError, StoreError
 
 from .app import app, registry
-from .options import OUTPUT, RESULTS, ColumnsOpt, FormatOpt, MinCoverage, ShownDataset, SortOpt, StoreOpt
+from .options import OUTPUT, RESULTS, ColumnsOpt, FormatOpt, MinCoverage, ShownDataset, SortOpt
 from .output import console, escape, print_board, wanted_columns, writable_folder
 from .running import BENCHMARK, board_sort
 
@@ -25,6 +25,33 @@ def _store(store: Path | None, first: str = "run `lwbench run` first") -> Path:
     return path
 
 
+#: ``--store`` of the commands that read results: repeatable, a store or a bundle each.
+SourcesOpt = Annotated[list[Path] | None, typer.Option(
+    "--store", help="Results store or bundle (.jsonl[.gz], `lwbench export`); repeat to put several machines' "
+    "results on one board.  [default: lwbench-results/results.sqlite]", show_default=False, rich_help_panel=RESULTS)]
+ByMachine = Annotated[bool, typer.Option(
+    "--by-machine", help="One line per machine (default: a configuration's rows pool: quality once per key, "
+    "runtimes of every machine; the *_x columns compare machines).", rich_help_panel=OUTPUT)]
+
+
+def _sources(paths: list[Path] | None, first: str = "run `lwbench run` first") -> list[Path]:
+    """The stores and bundles a reading command was given (each checked to exist)."""
+    from lwbench.results.bundle import is_bundle
+
+    out = []
+    for path in paths or [None]:
+        out.append(path if path is not None and is_bundle(path) and path.exists() else _store(path, first))
+    return out
+
+
+def board_info_of(results, reg):
+    """The metric declarations a board of ``results`` reads: the store's own, then the installed
+    metrics' (:func:`lwbench.results.leaderboard.board_info`)."""
+    from lwbench.results.leaderboard import board_info
+
+    return board_info(results, reg.metric_declarations())
+
+
 def _choice(value: str, choices: tuple[str, ...], option: str) -> None:
     if value not in choices:
         raise ParameterError(f"{option} must be {', '.join(choices[:-1])} or {choices[-1]}, got {value!r}")
@@ -32,24 +59,26 @@ def _choice(value: str, choices: tuple[str, ...], option: str) -> None:
 
 @app.command(rich_help_panel=BENCHMARK)
 def leaderboard(
-    store: StoreOpt = None,
+    store: SourcesOpt = None,
     dataset: ShownDataset = None,
     sort: SortOpt = None,
     format: FormatOpt = "table",
     columns: ColumnsOpt = None,
     min_coverage: MinCoverage = None,
+    by_machine: ByMachine = False,
 ) -> None:
     """Aggregate stored rows (mean, std, median, p95 per codec configuration)."""
+    from lwbench.results.bundle import open_results
     from lwbench.results.leaderboard import build_leaderboard, present_columns, to_csv, to_json, to_markdown
-    from lwbench.results.store import ResultStore
 
     _choice(format, ("table", "md", "csv", "json"), "--format")
-    path = _store(store)
+    paths = _sources(store)
+    path = ", ".join(map(str, paths))
     reg = registry()
-    info = reg.metric_info()
     board = {} if min_coverage is None else {"min_coverage": min_coverage}
-    with ResultStore(path, readonly=True) as results:
-        entries = build_leaderboard(results, dataset=dataset, sort=sort, info=info, **board)
+    with open_results(paths) as results:
+        info = board_info_of(results, reg)
+        entries = build_leaderboard(results, dataset=dataset, sort=sort, info=info, by_machine=by_machine, **board)
     stored_ids = {m for e in entries for m in e.stats}
     wanted = wanted_columns(columns, {**dict.fromkeys(stored_ids), **info})
     if not entries:
@@ -73,7 +102,7 @@ def rd(
     rate: Annotated[str | None, typer.Option(
         help="Rate metric id: bytes (per frame) or bits_per_point. Default: bytes per frame.",
         rich_help_panel=OUTPUT)] = None,
-    store: StoreOpt = None,
+    store: SourcesOpt = None,
     dataset: ShownDataset = None,
     reference: Annotated[str | None, typer.Option(
         help="Codec the BD-rate / BD-distortion are measured against.", rich_help_panel=OUTPUT)] = None,
@@ -86,21 +115,22 @@ def rd(
 ) -> None:
     """Rate-distortion from the sweep points in the store: each codec's curve, the Pareto front,
     values at equal rate / distortion (interpolated, never extrapolated) and BD-rate."""
+    from lwbench.results.bundle import open_results
     from lwbench.results.leaderboard import build_leaderboard, check_metric_ids
     from lwbench.results.rd import curves_from_entries, default_axes, summarise
-    from lwbench.results.store import ResultStore
 
     _choice(format, ("table", "json"), "--format")
     reg = registry()
-    info = reg.metric_info()
-    default_distortion, default_rate = default_axes(info)
-    distortion, rate = distortion or default_distortion, rate or default_rate
-    check_metric_ids([distortion, rate], info, "lwbench rd")
     # A curve needs a sweep, which a run file declares: plain `lwbench run` gives one point a codec.
-    path = _store(store, "run a sweep first: `lwbench run --config examples/runs/rd_tunnel.toml`, "
-                         "or a run file of your own with sweeps")
+    paths = _sources(store, "run a sweep first: `lwbench run --config examples/runs/rd_tunnel.toml`, "
+                            "or a run file of your own with sweeps")
+    path = ", ".join(map(str, paths))
     limits = {} if min_coverage is None else {"min_coverage": min_coverage}
-    with ResultStore(path, readonly=True) as results:
+    with open_results(paths) as results:
+        info = board_info_of(results, reg)  # the store's declarations: the same axes wherever it is read
+        default_distortion, default_rate = default_axes(info)
+        distortion, rate = distortion or default_distortion, rate or default_rate
+        check_metric_ids([distortion, rate], info, "lwbench rd")
         entries = build_leaderboard(results, dataset=dataset, info=info, **limits)
     if reference is not None and reference not in {e.codec for e in entries}:
         shown = ", ".join(sorted({e.codec for e in entries})) or "none"
@@ -156,7 +186,7 @@ def _print_rd(summary: dict, info, distortion: str, rate: str, reference: str | 
 def report(
     out: Annotated[Path, typer.Option(
         help="Folder for index.html and the plots (PNG + SVG).", rich_help_panel=OUTPUT)] = Path("lwbench-report"),
-    store: StoreOpt = None,
+    store: SourcesOpt = None,
     dataset: ShownDataset = None,
     config: Annotated[Path | None, typer.Option(
         help="Run this TOML study first (cached rows are reused), then report it.", rich_help_panel=RESULTS)] = None,
@@ -173,7 +203,9 @@ def report(
         from .output import progress
         from .running import RunConsole
 
-        request = read_run_file(config).with_options(store=store)
+        if store and len(store) > 1:
+            raise ParameterError("--config runs into one store: give one --store")
+        request = read_run_file(config).with_options(store=store[0] if store else None)
         with progress() as shown:
             outcome = Study.prepare(request, reg).run(on_event=RunConsole(shown))
         done = [(s.evaluated, s.skipped, s.failed) for s in outcome.summaries]
@@ -181,6 +213,6 @@ def report(
                       f"{sum(d[2] for d in done)} failure(s) -> {escape(str(request.store_path))}")
         if outcome.interrupted:
             raise typer.Exit(130)
-        store = request.store_path
-    page = write_report(_store(store), out, reg, dataset=dataset)
+        store = [request.store_path]
+    page = write_report(_sources(store), out, reg, dataset=dataset)
     console.print(f"wrote {escape(str(page))} (open it in a browser; plots as PNG and SVG beside it)")

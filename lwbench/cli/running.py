@@ -81,6 +81,9 @@ def run(
         help="local, or ray: evaluations as Ray tasks (lwbench\\[ray]).", rich_help_panel=EXECUTION)] = "local",
     address: Annotated[str | None, typer.Option(
         help="Ray cluster address (--executor ray; default: start a local Ray).", rich_help_panel=EXECUTION)] = None,
+    machine: Annotated[str | None, typer.Option(
+        help="Label the rows' machine (a team or host name on a common board; default: LWBENCH_MACHINE, else "
+             "this host's description).", rich_help_panel=EXECUTION)] = None,
 ) -> None:
     """Evaluate codecs on a dataset; every result lands in the store; print the leaderboard."""
     from lwbench.results.leaderboard import build_leaderboard, check_metric_ids
@@ -90,7 +93,7 @@ def run(
 
     reg = registry()
     options = {"retry_failed": retry_failed, "force": force, "isolate": isolate, "memory_mb": memory_limit,
-               "executor": executor, "address": address}
+               "executor": executor, "address": address, "machine": machine}
     if config is not None:
         if dataset or dataset_param or codec or param:
             raise ParameterError("--config describes the datasets and codecs: leave out --dataset, --codec and --param")
@@ -105,7 +108,9 @@ def run(
             metric_params=words(metric_param), seed=seed, frames=frames, sequence_metrics=not no_sequence_metrics,
             metrics=tuple(words(metric)), store=store, workers=workers,
             timeout_s=(DEFAULT_TIMEOUT_S if timeout is None else timeout) or None, **options)
-    info = reg.metric_info()
+    from lwbench.results.leaderboard import board_info
+
+    info = board_info(None, reg.metric_declarations())  # the installed metrics' (+ runtimes as *_x)
     wanted = wanted_columns(columns, info)
     if sort is not None:
         check_metric_ids([sort], info, "--sort")  # before the evaluation, not after it
@@ -115,6 +120,7 @@ def run(
         if outcome.interrupted:
             err_console.print("[yellow]interrupted:[/] finished rows are stored; run the same command again to resume")
             raise typer.Exit(130)
+        info = board_info(results, reg.metric_declarations())
         sort = sort or board_sort(info)
         board = {} if min_coverage is None else {"min_coverage": min_coverage}
         entries = build_leaderboard(results, sort=sort, info=info, keys=outcome.keys, **board)

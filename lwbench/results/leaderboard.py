@@ -45,9 +45,11 @@ import numpy as np
 from lwbench.errors import LwbenchError
 from lwbench.metric import HIGHER, LOWER, Guard, MetricId
 from lwbench.params import config_label
+from lwbench.results.declarations import board_info, normalized_runtime_ids
 from lwbench.results.store import ResultRow, ResultStore
 
 __all__ = [
+    "board_info",
     "CAVEATS",
     "FLAG_NOTES",
     "FLAG_TEXT",
@@ -94,6 +96,8 @@ class LeaderboardEntry:
     evaluations: dict[int, str] = field(default_factory=dict, repr=False)  # frame -> evaluation key
     voided: set[str] = field(default_factory=set)  # ids whose figures a raised guard makes meaningless
     flag_texts: dict[str, str] = field(default_factory=dict, repr=False)  # flag -> its text on the board
+    machine: str = ""  # the one machine of this entry's rows (a board split --by-machine)
+    machines: tuple[str, ...] = ()  # the machines whose rows it pools (quality once per key, runtimes each)
 
     @property
     def full_label(self) -> str:
@@ -109,7 +113,8 @@ class LeaderboardEntry:
             for k, v in self.params.items()
             if k in self.swept or k not in self.defaults or self.defaults[k] != v
         }
-        return config_label(self.codec, shown)
+        label = config_label(self.codec, shown)
+        return f"{label} @{self.machine}" if self.machine else label
 
     def value(self, metric: str, stat: str = "mean") -> float | None:
         return self.stats.get(metric, {}).get(stat)
@@ -143,6 +148,7 @@ class LeaderboardEntry:
             "failures": self.failures,
             "label": self.label,
             "flags": list(self.flags),
+            "machines": list(self.machines),
         }
         for metric, s in self.stats.items():
             out[metric] = _finite_or_none(s.get("mean"))
@@ -251,6 +257,7 @@ def build_leaderboard(
     min_coverage: float | None = None,
     flagged_last: bool = True,
     limits: Mapping[str, float] | None = None,
+    by_machine: bool = False,
 ) -> list[LeaderboardEntry]:
     """Entries sorted by ``sort`` (default: :func:`headline_metric`; best first, in the direction
     its metric declares; configurations with a quality flag -- any flag but a caveat,
@@ -259,7 +266,13 @@ def build_leaderboard(
     ``Registry.metric_info()``) -- sort directions and the quality guards come from there;
     ``limits`` replaces guards' limits by their ``setting`` name (``min_coverage=`` is
     ``limits={"min_coverage": ...}``); ``keys`` restricts the board to those rows (what one run
-    asked for)."""
+    asked for).
+
+    Rows of one configuration from several machines (imported bundles) pool: each key's quality
+    figures count once (the same data, code and metrics give the same values on every machine),
+    runtimes count every machine's rows -- the ``*_x`` figures (runtimes as multiples of each
+    machine's reference workload, :mod:`lwbench.reference`) are what compares them;
+    ``by_machine=True`` gives each machine its own entry instead."""
     if info is None:
         from lwbench.registry import get_registry
 
@@ -275,14 +288,20 @@ def build_leaderboard(
             continue
         # Group by the data's identity, not its label: the same label over changed data (a new
         # simulator version, edited files) is a different dataset and must not be averaged in.
-        groups[(row.dataset_id, row.codec, json.dumps(row.params, sort_keys=True))].append(row)
+        machine = row.machine if by_machine else ""
+        groups[(row.dataset_id, row.codec, json.dumps(row.params, sort_keys=True), machine)].append(row)
         labels[row.dataset_id] = row.dataset
     ambiguous = {lab for lab in labels.values() if list(labels.values()).count(lab) > 1}
     entries = []
-    for (ds_id, codec, params_json), rows in groups.items():
+    runtime = {i for i, m in info.items() if getattr(m, "role", "") == "runtime"}
+    normalized = normalized_runtime_ids(info)
+    for (ds_id, codec, params_json, machine), rows in groups.items():
         ds = labels[ds_id] if labels[ds_id] not in ambiguous else f"{labels[ds_id]} [{ds_id}]"
-        entry = LeaderboardEntry(ds, codec, json.loads(params_json), dataset_id=ds_id)
+        entry = LeaderboardEntry(ds, codec, json.loads(params_json), dataset_id=ds_id, machine=machine)
+        entry.machines = tuple(sorted({r.machine for r in rows}))
         rows, entry.stale = _newest_scoring(rows)
+        every_machine = list({(r.machine, r.key): r for r in reversed(rows)}.values())  # local rows first
+        rows = list({r.key: r for r in reversed(rows)}.values())[::-1]  # one row per key: quality counts once
         entry.defaults = next((r.extra["declared_defaults"] for r in rows if "declared_defaults" in r.extra), {})
         per_metric: dict[str, list[float]] = defaultdict(list)
         frames = []
@@ -298,10 +317,24 @@ def build_leaderboard(
             if r.kind == "frame":
                 entry.frames += 1
             for k, v in r.metrics.items():
+                if k in runtime:
+                    continue  # every machine's, below
                 if v is not None:
                     per_metric[k].append(v)
                 else:
                     per_metric.setdefault(k, [])
+        for r in every_machine:
+            if r.status != "ok":
+                continue
+            reference = r.extra.get("reference_ms")
+            for k in runtime & set(r.metrics):
+                v = r.metrics[k]
+                per_metric.setdefault(k, [])
+                if v is None:
+                    continue
+                per_metric[k].append(v)
+                if k in normalized and reference:
+                    per_metric[normalized[k]].append(v / reference)
         entry.frame_set = tuple(sorted(frames))
         entry.stats = {k: _summarise(v) for k, v in per_metric.items()}
         _flag(entry, guards, limits)

@@ -305,13 +305,22 @@ def _json_in_html(data) -> str:
     return json.dumps(data).replace("</", "<\\/")
 
 
-def write_report(store_path: Path, out: Path, registry: Registry, *, dataset: str | None = None) -> Path:
-    """Write ``out/index.html`` and the plots' PNG/SVG files; return the page's path."""
+def write_report(sources: Path | list[Path], out: Path, registry: Registry, *, dataset: str | None = None) -> Path:
+    """Write ``out/index.html`` and the plots' PNG/SVG files; return the page's path. ``sources``:
+    a store, or several stores and bundles (``lwbench export``) -- one page for many machines,
+    with a line per machine where they differ, and the suites the rows were run for."""
+    from lwbench.results.bundle import open_results
+    from lwbench.results.leaderboard import board_info
+
+    sources = [sources] if isinstance(sources, Path) else list(sources)
     out.mkdir(parents=True, exist_ok=True)
-    info = registry.metric_info()
-    with ResultStore(store_path, readonly=True) as store:
-        entries = build_leaderboard(store, dataset=dataset, info=info)
+    with open_results(sources) as store:
+        info = board_info(store, registry.metric_declarations())
+        machines = {r.machine for r in store.rows()}
+        suites = sorted({s for names in store.suites_of().values() for s in names})
+        entries = build_leaderboard(store, dataset=dataset, info=info, by_machine=len(machines) > 1)
         gallery = _gallery(store, entries)
+    store_path = ", ".join(str(p) for p in sources)
     figures = rd_figures(entries, info, out)
     runtime = runtime_figure(entries, out, info)
     if runtime is not None:
@@ -323,6 +332,10 @@ def write_report(store_path: Path, out: Path, registry: Registry, *, dataset: st
         f"<p>{len(entries)} configuration(s) on {len({e.dataset for e in entries})} dataset(s), from "
         f"<code>{html.escape(str(store_path))}</code>. Means over frames (hover a value for its std); "
         "rows a quality flag ranks last are grey and stay last; click a column to sort.</p>",
+        *([f"<p>Machines: {html.escape(', '.join(sorted(machines)))} (a line per machine: quality is the same "
+           "for the same configuration, runtimes are each machine's; the <code>*_x</code> columns are runtimes "
+           "as multiples of each machine's reference workload).</p>"] if len(machines) > 1 else []),
+        *([f"<p>Suite(s): {html.escape(', '.join(suites))}</p>"] if suites else []),
         "<h2>Leaderboard</h2>",
         _table(entries, info),
         *(f"<p class='note'>{html.escape(note)}</p>" for flag, note in FLAG_NOTES.items()

@@ -10,24 +10,38 @@ and compressed (:mod:`lwbench.results.artifacts`); the store holds their names.
 
 from __future__ import annotations
 
-import hashlib
 import json
-import math
 import platform
 import sqlite3
-import time
 from collections.abc import Callable, Iterable, Iterator
-from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from lwbench.errors import StoreError
 from lwbench.results.artifacts import CloudFiles, pack_array, unpack_array
+from lwbench.results.rows import (
+    ResultRow,
+    canonical_json,
+    evaluation_key,
+    json_safe_metrics,
+    metrics_from_json,
+    result_key,
+    row_from_dict,
+    row_to_dict,
+)
+from lwbench.results.sqlite_files import (
+    ask_sqlite,
+    connect_readonly,
+    connect_writable,
+    empty_sqlite,
+    schema_version,
+    table_columns,
+)
 
-__all__ = ["ResultStore", "ResultRow", "evaluation_key", "result_key", "environment_versions", "is_results_store"]
+__all__ = ["ResultStore", "ResultRow", "evaluation_key", "result_key", "environment_versions", "is_results_store",
+           "row_from_dict", "row_to_dict"]
 
 # 2: rows carry the codec plugin's package version and the scoring signature (metric names,
 #    versions, parameters and settings), both part of the key.
@@ -36,7 +50,12 @@ __all__ = ["ResultStore", "ResultRow", "evaluation_key", "result_key", "environm
 # 4: rows say whether the dataset's sensor model was guessed (column sensor_guessed; rows of older
 #    stores read as not guessed -- nobody recorded it then). An older lwbench refuses a schema-4
 #    store rather than show its guessed rows without their flag.
-SCHEMA_VERSION = 4
+# 5: the store carries its metrics' declarations (table metric_declarations: unit, direction,
+#    headline, guard of each scoring metric), so a board ranks and flags the same wherever it is
+#    read; rows imported from other machines' bundles (table imported, one row per machine and
+#    key); which suite asked for which row (table suite_rows). An older lwbench would rank a
+#    store without the metric plugin wrongly and miss the imported rows: it refuses schema 5.
+SCHEMA_VERSION = 5
 _COLUMNS = (
     "key", "kind", "dataset", "dataset_id", "frame", "codec", "codec_version", "params", "status", "error",
     "metrics", "extra", "seed", "lwbench_version", "versions", "machine", "created", "plugin_version", "scoring",
@@ -79,6 +98,24 @@ CREATE TABLE IF NOT EXISTS artifact_files (
     digest          TEXT NOT NULL,
     PRIMARY KEY (evaluation, name)
 );
+CREATE TABLE IF NOT EXISTS metric_declarations (
+    name            TEXT NOT NULL,
+    version         TEXT NOT NULL,
+    declaration     TEXT NOT NULL,
+    PRIMARY KEY (name, version)
+);
+CREATE TABLE IF NOT EXISTS imported (
+    machine         TEXT NOT NULL,
+    key             TEXT NOT NULL,
+    row             TEXT NOT NULL,
+    bundle          TEXT NOT NULL,
+    PRIMARY KEY (machine, key)
+);
+CREATE TABLE IF NOT EXISTS suite_rows (
+    suite           TEXT NOT NULL,
+    key             TEXT NOT NULL,
+    PRIMARY KEY (suite, key)
+);
 """
 # Columns added after schema 1, with the values old rows get.
 _ADDED = {
@@ -86,81 +123,6 @@ _ADDED = {
     "scoring": "TEXT NOT NULL DEFAULT '[]'",
     "sensor_guessed": "INTEGER NOT NULL DEFAULT 0",
 }
-
-
-def canonical_json(obj: Any) -> str:
-    return json.dumps(obj, sort_keys=True, separators=(",", ":"), default=str)
-
-
-def evaluation_key(
-    dataset_id: str, frame: int, codec: str, codec_version: str, plugin_version: str, params: dict, seed: int
-) -> str:
-    """What was *encoded*: the same data through the same code and parameters gives the same
-    decoded cloud, whatever it is scored with (artifacts such as decoded clouds use this)."""
-    blob = canonical_json([dataset_id, frame, codec, codec_version, plugin_version, params, seed])
-    return hashlib.sha256(blob.encode()).hexdigest()
-
-
-def result_key(evaluation: str, kind: str, part: str, scoring: list) -> str:
-    """The identity of one row: an evaluation scored by a given set of metric versions and
-    parameters. Same inputs, same key, so a re-run is a cache hit; a fixed metric, a changed
-    metric parameter or a new plugin release is a different key and recomputes."""
-    blob = canonical_json([evaluation, kind, part, scoring])
-    return hashlib.sha256(blob.encode()).hexdigest()
-
-
-def _json_safe(metrics: dict[str, float | None]) -> dict[str, float | str | None]:
-    # JSON has no inf/NaN: infinities (lossless PSNR) are stored as strings, NaN as null.
-    out: dict[str, float | str | None] = {}
-    for k, v in metrics.items():
-        if v is None or (isinstance(v, float) and math.isnan(v)):
-            out[k] = None
-        elif isinstance(v, float) and math.isinf(v):
-            out[k] = "inf" if v > 0 else "-inf"
-        else:
-            out[k] = float(v)
-    return out
-
-
-def _from_json(metrics: dict) -> dict[str, float | None]:
-    return {k: (float(v) if isinstance(v, str) else v) for k, v in metrics.items()}
-
-
-@dataclass
-class ResultRow:
-    kind: str
-    dataset: str
-    dataset_id: str
-    frame: int
-    codec: str
-    codec_version: str
-    params: dict
-    status: str
-    metrics: dict[str, float | None]
-    seed: int
-    error: str | None = None
-    extra: dict = field(default_factory=dict)
-    part: str = ""
-    versions: dict = field(default_factory=dict)
-    lwbench_version: str = ""
-    machine: str = ""
-    created: str = ""
-    plugin_version: str = ""
-    scoring: list = field(default_factory=list)
-    # Whether the dataset's sensor model was a guess (derived without ring labels) when this row
-    # was scored: its range metrics stand on that guessed beam table. Not part of the key (the
-    # same data and code give the same guess).
-    sensor_guessed: bool = False
-
-    @property
-    def evaluation(self) -> str:
-        return evaluation_key(
-            self.dataset_id, self.frame, self.codec, self.codec_version, self.plugin_version, self.params, self.seed
-        )
-
-    @property
-    def key(self) -> str:
-        return result_key(self.evaluation, self.kind, self.part, self.scoring)
 
 
 def environment_versions(extra_modules: Iterable[str] = ()) -> dict[str, str]:
@@ -182,94 +144,15 @@ def machine_description() -> str:
     return f"{platform.node()} {platform.machine()} {os.cpu_count()} cpu {platform.system()}"
 
 
-def _columns(conn: sqlite3.Connection, table: str) -> set[str]:
-    return {r[1] for r in conn.execute(f"PRAGMA table_info({table})")}
-
-
-def _schema_version(conn: sqlite3.Connection) -> int | None:
-    """The store schema of an open SQLite database, or ``None`` if it is not a results store.
-
-    Recognised by its tables, not by being SQLite: a ROS 2 bag (``.db3``) or any other
-    application's database is SQLite too."""
-    try:
-        tables = {r[0] for r in conn.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
-    except sqlite3.DatabaseError:
-        return None
-    if not {"results", "meta"} <= tables or not set(_COLUMNS) - set(_ADDED) <= _columns(conn, "results"):
-        return None
-    row = conn.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()
-    try:
-        return int(row[0]) if row else None
-    except ValueError:
-        return None
-
-
-#: How long opening a store waits for another process that holds it (SQLite's busy timeout).
-BUSY_TIMEOUT_S = 30.0
-
-
-def _connect_writable(path: Path) -> sqlite3.Connection:
-    """A connection in WAL mode. Switching a database to WAL takes an exclusive lock, and SQLite
-    answers "database is locked" at once -- without waiting the busy timeout -- when another
-    connection holds the file at that moment: two runs started together on a new store hit it
-    (31 of 150 three-process races here). So the switch is retried until the busy timeout, and
-    skipped when the file is already in WAL mode (reading the mode takes no lock)."""
-    conn = sqlite3.connect(str(path), timeout=BUSY_TIMEOUT_S)
-    deadline = time.monotonic() + BUSY_TIMEOUT_S
-    while True:
-        try:
-            if conn.execute("PRAGMA journal_mode").fetchone()[0].lower() != "wal":
-                conn.execute("PRAGMA journal_mode=WAL")
-            conn.execute("PRAGMA synchronous=NORMAL")
-            return conn
-        except sqlite3.OperationalError as exc:
-            if "locked" not in str(exc) and "busy" not in str(exc) or time.monotonic() > deadline:
-                conn.close()
-                raise
-            time.sleep(0.02)
-
-
-def _connect_readonly(path: Path) -> sqlite3.Connection:
-    """A connection that cannot write (``mode=ro``). A WAL database in a folder we may not write
-    to cannot be opened so (SQLite needs its ``-shm`` file); it is then read as ``immutable``,
-    which is right for a store no run is writing to."""
-    uri = path.resolve().as_uri()
-    conn = sqlite3.connect(f"{uri}?mode=ro", uri=True, timeout=30.0)
-    try:
-        conn.execute("SELECT 1 FROM sqlite_master LIMIT 1").fetchall()
-    except sqlite3.OperationalError:
-        conn.close()
-        conn = sqlite3.connect(f"{uri}?mode=ro&immutable=1", uri=True, timeout=30.0)
-    return conn
-
-
-def _ask_sqlite(path: Path, question: Callable[[sqlite3.Connection], bool]) -> bool:
-    """``question`` about the SQLite file at ``path``, asked read-only; False for anything that
-    is not a readable SQLite database (checked by its magic bytes before SQLite opens it)."""
-    with open(path, "rb") as fh:
-        if fh.read(16) != b"SQLite format 3\x00":
-            return False
-    try:
-        conn = _connect_readonly(path)
-    except sqlite3.Error:
-        return False
-    try:
-        return question(conn)
-    except sqlite3.DatabaseError:
-        return False
-    finally:
-        conn.close()
+#: The columns every results store has had since schema 1 (what recognises one).
+_REQUIRED = tuple(c for c in _COLUMNS if c not in _ADDED)
 
 
 def is_results_store(path: str | Path) -> bool:
     """Whether ``path`` is an lwbench results store (checked read-only: nothing is written)."""
     path = Path(path)
-    return path.is_file() and _ask_sqlite(path, lambda conn: _schema_version(conn) is not None)
+    return path.is_file() and ask_sqlite(path, lambda conn: schema_version(conn, _REQUIRED) is not None)
 
-
-def _empty_sqlite(path: Path) -> bool:
-    """An SQLite database with no table at all (a store being created by another process)."""
-    return _ask_sqlite(path, lambda conn: conn.execute("SELECT COUNT(*) FROM sqlite_master").fetchone()[0] == 0)
 
 
 class ResultStore:
@@ -290,7 +173,7 @@ class ResultStore:
         exists = self.path.is_file() and self.path.stat().st_size > 0
         if readonly and not exists:
             raise StoreError(f"no results store at {self.path}")
-        if exists and not readonly and _empty_sqlite(self.path):
+        if exists and not readonly and empty_sqlite(self.path):
             # Another run is creating this store at this moment (its tables are not committed
             # yet): two runs started together on a new store both initialise it, idempotently.
             exists = False
@@ -301,13 +184,13 @@ class ResultStore:
             )
         try:
             if readonly:
-                self.conn = _connect_readonly(self.path)
+                self.conn = connect_readonly(self.path)
             else:
                 self.path.parent.mkdir(parents=True, exist_ok=True)
-                self.conn = _connect_writable(self.path)
+                self.conn = connect_writable(self.path)
         except (sqlite3.Error, OSError) as exc:
             raise StoreError(f"cannot open results store {self.path}: {exc}") from None
-        version = _schema_version(self.conn) if exists else SCHEMA_VERSION
+        version = schema_version(self.conn, _REQUIRED) if exists else SCHEMA_VERSION
         if version is None or version > SCHEMA_VERSION:
             self.conn.close()
             raise StoreError(
@@ -318,7 +201,7 @@ class ResultStore:
             try:
                 with self.conn:
                     self.conn.executescript(_SCHEMA)
-                    missing = {c: t for c, t in _ADDED.items() if c not in _columns(self.conn, "results")}
+                    missing = {c: t for c, t in _ADDED.items() if c not in table_columns(self.conn, "results")}
                     for column, decl in missing.items():
                         self.conn.execute(f"ALTER TABLE results ADD COLUMN {column} {decl}")
                     self.conn.execute(
@@ -327,9 +210,12 @@ class ResultStore:
             except sqlite3.Error as exc:
                 self.conn.close()
                 raise StoreError(f"cannot write results store {self.path}: {exc}") from None
-        self._present = _columns(self.conn, "results")
-        self._has_artifacts = bool(_columns(self.conn, "artifacts"))
-        self._has_files = bool(_columns(self.conn, "artifact_files"))
+        self._present = table_columns(self.conn, "results")
+        self._has_artifacts = bool(table_columns(self.conn, "artifacts"))
+        self._has_files = bool(table_columns(self.conn, "artifact_files"))
+        self._has_imported = bool(table_columns(self.conn, "imported"))
+        self._has_declarations = bool(table_columns(self.conn, "metric_declarations"))
+        self._has_suites = bool(table_columns(self.conn, "suite_rows"))
         # An in-memory store (a gate without a store) keeps its arrays in memory too.
         self.files = None if str(path) == ":memory:" else CloudFiles.beside(self.path)
 
@@ -370,7 +256,7 @@ class ResultStore:
             "params": canonical_json(row.params),
             "status": row.status,
             "error": row.error,
-            "metrics": json.dumps(_json_safe(row.metrics), sort_keys=True),
+            "metrics": json.dumps(json_safe_metrics(row.metrics), sort_keys=True),
             "extra": canonical_json(extra),
             "seed": row.seed,
             "lwbench_version": row.lwbench_version or __version__,
@@ -432,7 +318,22 @@ class ResultStore:
         ).fetchone()
         return row[0] if row is not None and self.files.path(row[0]).is_file() else None
 
-    def rows(self, *, dataset: str | None = None, kind: str | None = None) -> Iterator[ResultRow]:
+    def rows(self, *, dataset: str | None = None, kind: str | None = None,
+             imported: bool = True) -> Iterator[ResultRow]:
+        """Every row (this store's, then -- with ``imported`` -- those imported from other
+        machines' bundles, :meth:`import_rows`), optionally of one dataset or kind."""
+        yield from self._local_rows(dataset, kind)
+        if imported and self._has_imported:
+            for (text,) in self.conn.execute("SELECT row FROM imported ORDER BY machine, key"):
+                row = row_from_dict(json.loads(text))
+                if kind is not None and row.kind != kind:
+                    continue
+                if dataset is not None and not (row.dataset == dataset or row.dataset_id == dataset
+                                                or row.dataset.startswith(dataset)):
+                    continue
+                yield row
+
+    def _local_rows(self, dataset: str | None, kind: str | None) -> Iterator[ResultRow]:
         cols = [c if c in self._present else f"{_DEFAULTS[c]} AS {c}" for c in _COLUMNS]
         sql = f"SELECT {', '.join(cols)} FROM results"
         clauses, args = [], []
@@ -457,7 +358,7 @@ class ResultStore:
                 codec_version=v["codec_version"],
                 params=json.loads(v["params"]),
                 status=v["status"],
-                metrics=_from_json(json.loads(v["metrics"])),
+                metrics=metrics_from_json(json.loads(v["metrics"])),
                 seed=v["seed"],
                 error=v["error"],
                 extra=extra,
@@ -473,6 +374,58 @@ class ResultStore:
 
     def count(self) -> int:
         return self.conn.execute("SELECT COUNT(*) FROM results").fetchone()[0]
+
+    # -- what the rows were scored with (schema 5) --------------------------------------------
+    def declare_metrics(self, declarations: Iterable[dict]) -> None:
+        """Keep each scoring metric's declaration (``FrameMetric.describe()`` plus ``order``): its
+        ids' units, directions, headline and guards. A board read from this store ranks and
+        flags with these, not with whatever plugins the reading machine has installed."""
+        if self.readonly:
+            raise StoreError(f"{self.path} was opened read-only")
+        with self.conn:
+            self.conn.executemany(
+                "INSERT OR REPLACE INTO metric_declarations VALUES (?, ?, ?)",
+                [(d["name"], str(d["version"]), canonical_json(d)) for d in declarations],
+            )
+
+    def metric_declarations(self) -> list[dict]:
+        """The declarations kept (:meth:`declare_metrics`), newest version of each metric last."""
+        if not self._has_declarations:
+            return []
+        found = [json.loads(t) for (t,) in self.conn.execute(
+            "SELECT declaration FROM metric_declarations ORDER BY name, version")]
+        return found
+
+    # -- other machines' rows (bundles: lwbench.results.bundle) --------------------------------
+    def import_rows(self, rows: Iterable[ResultRow], bundle: str) -> int:
+        """Keep rows another machine made (a bundle's), one per (machine, key): a configuration
+        measured on two machines stays two rows -- same quality, each machine's runtimes.
+        Imported rows are read by boards and reports, never taken as this machine's cache."""
+        if self.readonly:
+            raise StoreError(f"{self.path} was opened read-only")
+        values = [(r.machine, r.key, canonical_json(row_to_dict(r)), bundle) for r in rows]
+        with self.conn:
+            self.conn.executemany("INSERT OR REPLACE INTO imported VALUES (?, ?, ?, ?)", values)
+        return len(values)
+
+    # -- suites (lwbench suite run) --------------------------------------------------------------
+    def tag_suite(self, suite: str, keys: Iterable[str]) -> None:
+        """Record that ``suite`` (``NAME@VERSION+HASH``) asked for the rows ``keys`` -- also rows
+        an earlier run had stored (cache hits), so a suite's rows always say which suite made
+        them."""
+        if self.readonly:
+            raise StoreError(f"{self.path} was opened read-only")
+        with self.conn:
+            self.conn.executemany("INSERT OR REPLACE INTO suite_rows VALUES (?, ?)", [(suite, k) for k in keys])
+
+    def suites_of(self) -> dict[str, list[str]]:
+        """Row key -> the suites that asked for it."""
+        if not self._has_suites:
+            return {}
+        out: dict[str, list[str]] = {}
+        for suite, key in self.conn.execute("SELECT suite, key FROM suite_rows ORDER BY suite"):
+            out.setdefault(key, []).append(suite)
+        return out
 
 
 _DEFAULTS = {"plugin_version": "''", "scoring": "'[]'", "sensor_guessed": "0"}

@@ -30,6 +30,7 @@ from lwbench.frame import Frame
 from lwbench.limits import checked_cloud
 from lwbench.measure import PeakMemory, Stopwatch
 from lwbench.metric import Evaluation
+from lwbench.reference import reference_ms
 from lwbench.registry import Registry
 
 from .plan import CodecConfig
@@ -157,6 +158,9 @@ class Evaluator:
                 raise LwbenchError(f"frame {frame.index} is empty (no returns)")
             enc, extra = self.encoded(frame, config)
             extra["device"] = enc.device
+            # This process's time of the fixed reference workload: a board shows runtimes as
+            # multiples of it (lwbench.reference), comparable across machines.
+            extra["reference_ms"] = reference_ms()
             extra.update({k: v for k, v in enc.timings_ms.items() if k == "serialize_ms"})
             kind = self.registry.codec(config.name).kind
             ev = Evaluation(frame, enc.payload, enc.decoded, kind, enc.timings_ms, enc.peak_mb, enc.device, shared)

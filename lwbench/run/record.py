@@ -45,8 +45,14 @@ class Provenance:
     machine: str
 
     @classmethod
-    def current(cls) -> Provenance:
-        return cls(environment_versions(), machine_description())
+    def current(cls, machine: str | None = None) -> Provenance:
+        """This process's versions, and ``machine``: the label a user gave (``--machine``,
+        ``LWBENCH_MACHINE``: what tells two teams' rows apart on a common board), else the
+        machine's own description (host, architecture, CPUs, system)."""
+        import os
+
+        label = machine or os.environ.get("LWBENCH_MACHINE") or machine_description()
+        return cls(environment_versions(), label)
 
 
 @dataclass

@@ -73,6 +73,8 @@ class RunRequest:
     memory_mb: int | None = None
     executor: str = "local"
     address: str | None = None
+    machine: str | None = None  # the rows' machine label (default: LWBENCH_MACHINE, else the host's description)
+    suite: str | None = None  # NAME@VERSION+HASH of the suite this request is (lwbench suite run)
 
     def __post_init__(self) -> None:
         """Every refusal of a contradictory or impossible request lives here, so the command line,
@@ -221,16 +223,22 @@ class Study:
                 return self.run(opened, on_event)
         r = self.request
         outcome = StudyOutcome()
+        # What the rows are scored with travels with them: a board read where a metric plugin is
+        # missing ranks and flags as here (lwbench.results.leaderboard.board_info).
+        results.declare_metrics(self.registry.metric_declarations())
         for index, (plan, dataset) in enumerate(zip(self.plans, self.datasets, strict=True)):
             runner = Runner(results, plan, registry=self.registry, workers=r.workers, retry_failed=r.retry_failed,
                             force=r.force, isolate=r.isolate, timeout_s=r.timeout_s, memory_mb=r.memory_mb,
-                            executor=r.executor, address=r.address, dataset=dataset)
+                            executor=r.executor, address=r.address, dataset=dataset, machine=r.machine)
             if on_event is not None:
                 on_event(PlanStarted(index, plan, len(runner.frame_indices), len(runner.configs),
                                      runner.sequence is not None, runner.sequence_skipped))
             summary = runner.run(on_event)
             outcome.summaries.append(summary)
-            outcome.keys |= runner.keys()
+            keys = runner.keys()
+            outcome.keys |= keys
+            if r.suite is not None:  # cached rows too: a suite's rows say which suite asked for them
+                results.tag_suite(r.suite, keys)
             if on_event is not None:
                 on_event(PlanFinished(index, plan, summary))
             if summary.interrupted:

@@ -65,6 +65,7 @@ class Runner:
         executor: str = "local",
         address: str | None = None,
         dataset: Dataset | None = None,
+        machine: str | None = None,
     ) -> None:
         """``isolate`` runs every evaluation in worker processes (``lwbench run`` does by
         default; more than one worker always does) with a per-call ``timeout_s`` and a memory
@@ -96,8 +97,8 @@ class Runner:
         self.worker = Worker(self.registry, plan.metric_params, {plan.dataset.label: self.dataset})
         self.evaluator: Evaluator = self.worker.evaluator
         self.rows = RowFactory(
-            self.registry, plan.dataset.label, self.dataset_id, plan.seed, self.evaluator.scoring, Provenance.current(),
-            sensor_guessed=bool(self.dataset.sensor_guessed),
+            self.registry, plan.dataset.label, self.dataset_id, plan.seed, self.evaluator.scoring,
+            Provenance.current(machine), sensor_guessed=bool(self.dataset.sensor_guessed),
         )
         self.sequence: SequenceStage | None = None
         # Why asked-for sequence metrics will not run (said by the CLI, never silent): no poses.

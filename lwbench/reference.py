@@ -1,0 +1,44 @@
+"""A fixed reference workload, timed on the machine (and in the process) that evaluates codecs,
+so that runtimes travel between machines as multiples of it (``encode_x`` on a board).
+
+A codec's milliseconds say as much about the CPU, its load and its BLAS threads as about the
+codec. Each worker times one fixed workload before its first evaluation -- the same process,
+the same thread budget, the same neighbours -- and every row it writes carries that time
+(``extra["reference_ms"]``); a board divides the runtime ids by it. The workload is issue 19's:
+a 57,600 x 500 float64 rational-quadratic kernel, ``|x|^2 + |z|^2 - 2 X Z^T`` in numpy -- a
+dense BLAS product and memory-bound elementwise work, the mix most codecs here spend their time
+on. How far the normalisation holds (threads, load) is measured in docs/leaderboard.md.
+"""
+
+from __future__ import annotations
+
+import functools
+import time
+
+import numpy as np
+
+__all__ = ["REFERENCE_WORKLOAD", "reference_ms", "time_reference"]
+
+#: What :func:`reference_ms` times (part of every row that carries a reference time).
+REFERENCE_WORKLOAD = "rq-kernel-57600x500-float64"
+
+
+def time_reference(repeats: int = 3) -> float:
+    """Median wall time (ms) of the reference workload, ``repeats`` runs after one warm-up."""
+    rng = np.random.default_rng(0)
+    x, z = rng.uniform(size=(57_600, 3)), rng.uniform(size=(500, 3))
+    times = []
+    for i in range(repeats + 1):
+        t = time.perf_counter()
+        d2 = (x * x).sum(1)[:, None] + (z * z).sum(1)[None, :] - 2.0 * (x @ z.T)
+        k = 10.0 * (1.0 + d2 / 2.0) ** -1.0
+        if i:  # the first run pays for page faults and BLAS start-up
+            times.append(time.perf_counter() - t)
+        del k, d2
+    return 1000.0 * float(np.median(times))
+
+
+@functools.cache
+def reference_ms() -> float:
+    """This process's reference time (ms), measured once (a few hundred ms) and kept."""
+    return time_reference()
