@@ -82,6 +82,15 @@ from lwbench.sensors.model import SENSOR_PRESETS, RangeImage, SensorModel, get_s
 from lwbench.tiles import TILE_M, SpillingTiles, split_by_tile, tiles_at, tiles_near
 from lwbench.version import __version__
 
+
+def open_results(*sources):
+    """Stored results for a notebook or script: rows and boards as dicts or pandas DataFrames
+    (:class:`lwbench.notebook.Results`; imported on first use, so ``import lwbench`` stays light)."""
+    from lwbench.notebook import open_results as _open_results
+
+    return _open_results(*sources)
+
+
 __all__ = [
     "ALL_CURVES",
     "BUDGET_PARAMS",
@@ -143,6 +152,7 @@ __all__ = [
     "occupancy_tiles",
     "occupied_voxels",
     "open_dataset",
+    "open_results",
     "outside_range_window",
     "pack_points",
     "Param",

@@ -66,6 +66,9 @@ def leaderboard(
     columns: ColumnsOpt = None,
     min_coverage: MinCoverage = None,
     by_machine: ByMachine = False,
+    suite: Annotated[str | None, typer.Option(
+        help="Only the rows a suite asked for: a name (any version) or an identity NAME+HASH "
+             "(`lwbench suite list`).", rich_help_panel=RESULTS)] = None,
 ) -> None:
     """Aggregate stored rows (mean, std, median, p95 per codec configuration)."""
     from lwbench.results.bundle import open_results
@@ -78,7 +81,14 @@ def leaderboard(
     board = {} if min_coverage is None else {"min_coverage": min_coverage}
     with open_results(paths) as results:
         info = board_info_of(results, reg)
-        entries = build_leaderboard(results, dataset=dataset, sort=sort, info=info, by_machine=by_machine, **board)
+        keys = None
+        if suite is not None:
+            keys = {k for k, names in results.suites_of().items()
+                    if any(n == suite or n.split("+")[0] == suite for n in names)}
+            if not keys:
+                raise LwbenchError(f"no rows of suite {suite!r} in {path}")
+        entries = build_leaderboard(results, dataset=dataset, sort=sort, info=info, by_machine=by_machine,
+                                    keys=keys, **board)
     stored_ids = {m for e in entries for m in e.stats}
     wanted = wanted_columns(columns, {**dict.fromkeys(stored_ids), **info})
     if not entries:
