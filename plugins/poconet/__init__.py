@@ -7,8 +7,9 @@ and the true observation-count labels it learns from.
   siamese encoder, in plain PyTorch with SciPy k-d trees in the data pipeline;
 - :mod:`.train` -- ``lwbench train poconet`` (CPU or CUDA, resumable);
 - :mod:`.codec` -- the two selection codecs; the shipped weights are ``weights/``;
-- :mod:`.diagnose`, :mod:`.table_command` -- ``lwbench diagnose`` and ``lwbench poconet-table``
-  (Table I on held-out drives, docs/poconet.md §6).
+- :mod:`.diagnose`, :mod:`.table_command`, :mod:`.figures` -- ``lwbench diagnose``, ``lwbench
+  poconet-table`` (Table I on held-out drives, docs/poconet.md §6), ``lwbench poconet-ablation``
+  and ``lwbench poconet-real`` (the global module's ablation, real scans).
 
 Heavy imports (torch, SciPy, Open3D) happen inside the functions that use them.
 """
@@ -29,8 +30,9 @@ def lwbench_codecs():
 
 @hookimpl
 def lwbench_register_commands(cli) -> None:
-    from . import commands, diagnose, table_command
+    from . import commands, diagnose, figures, table_command
 
     commands.register(cli)
     diagnose.register(cli)
     table_command.register(cli)
+    figures.register(cli)
