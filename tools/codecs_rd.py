@@ -14,14 +14,12 @@ payload bytes at the default 1 cm step. The rate-distortion tables themselves co
 
 from __future__ import annotations
 
-import sys
+import argparse
 from pathlib import Path
 
 import numpy as np
-from lwbench_plugins.rangeimage import RangeImageCodec
 
-from lwbench.registry import get_registry
-from lwbench.run.plan import resolve_dataset
+from lwbench import codec_class, open_dataset
 
 SETTINGS = (
     ("offset_step=1 (the cell's ray)", {"offset_step": 1.0}),
@@ -33,19 +31,18 @@ SETTINGS = (
 
 
 def main() -> None:
-    if len(sys.argv) != 2:
-        raise SystemExit(__doc__)
-    real = Path(sys.argv[1])
-    registry = get_registry()
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("real", type=Path, help="the shared real samples (one dataset folder each)")
+    real = ap.parse_args().real
+    RangeImageCodec = codec_class("rangeimage")  # noqa: N806 - the class, named as the plugin names it
     print("| folder | offsets | returns decoded | off-position mean (mm) | p95 (mm) | max (mm) | bytes (1 cm step) |")
     print("|---|---|---|---|---|---|---|")
     for folder in sorted(p for p in real.iterdir() if p.is_dir()):
-        spec = resolve_dataset(registry, str(folder), {}, 0)
-        frame = registry.dataset(spec.name)(**spec.params)[0]
+        frame = open_dataset(folder)[0]
         for label, params in SETTINGS:
             exact = RangeImageCodec(mode="lossless", **params)
             _, layers, _ = exact.layers(frame)
-            decoded = RangeImageCodec().decode(exact.encode(frame))
+            decoded = RangeImageCodec().use_sensors([frame.sensor]).decode(exact.encode(frame))
             gap = np.linalg.norm(decoded.astype(np.float64) - frame.points[layers.source], axis=1) * 1000
             size = len(RangeImageCodec(**params).encode(frame))
             print(f"| {folder.name} | {label} | {len(decoded):,} of {len(frame):,} | {gap.mean():.2f} "

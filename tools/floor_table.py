@@ -42,10 +42,9 @@ def _fmt(v: float | None, spec: str) -> str:
 
 
 def curve(dataset: str, words: list[str], sigma: float | None) -> None:
-    from lwbench.run.plan import parse_assignments, resolve_dataset
+    from lwbench import open_dataset
 
-    reg = get_registry()
-    frame = resolve_dataset(reg, dataset, parse_assignments(words, "--dataset-param"), 0).build(reg)[0]
+    frame = open_dataset(dataset, words)[0]
     floor = scan_floor(frame)
     sigma = sigma or floor.sigma
     m = floor.mask

@@ -4,7 +4,7 @@
     python tools/fuzz_atheris.py rangeimage -atheris_runs=20000 -timeout=10 -rss_limit_mb=3072
 
 libFuzzer's bytes drive :func:`lwbench.fuzz.mutate` (the same structure-aware mutations as the
-hypothesis tests and tools/fuzz_codecs.py) over the codec's seed payloads, and the decode runs
+hypothesis tests and ``lwbench fuzz``) over the codec's seed payloads, and the decode runs
 in this process: any exception but ``PayloadError`` is a crash that libFuzzer saves as a
 reproducer; ``-timeout`` and ``-rss_limit_mb`` catch hangs and memory bombs.
 """
@@ -13,14 +13,18 @@ from __future__ import annotations
 
 import sys
 
-import atheris
+if "-h" in sys.argv[1:] or "--help" in sys.argv[1:]:
+    print(__doc__)
+    sys.exit(0)
+try:
+    import atheris
+except ImportError:
+    sys.exit("tools/fuzz_atheris.py needs atheris (pip install atheris; not a dependency of lwbench)\n" + __doc__)
 
 with atheris.instrument_imports():
     import lwbench  # noqa: F401
-    from lwbench.fuzz import _split, mutate, seed_payloads
-    from lwbench.payload import PayloadError
-    from lwbench.registry import get_registry
-
+    from lwbench import PayloadError, codec_class
+    from lwbench.fuzz import mutate, seed_payloads, split_payload
 
 
 class ProviderChooser:
@@ -40,9 +44,9 @@ def main() -> None:
     if len(sys.argv) < 2 or sys.argv[1].startswith("-"):
         sys.exit(__doc__)
     name = sys.argv.pop(1)
-    cls = get_registry().codec(name)
+    cls = codec_class(name)
     seeds = seed_payloads(cls, cls.test_params())
-    bodies = [_split(data).body for _, data in seeds]
+    bodies = [split_payload(data).body for _, data in seeds]
 
     def one_input(data: bytes) -> None:
         ch = ProviderChooser(atheris.FuzzedDataProvider(data))

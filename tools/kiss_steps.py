@@ -10,21 +10,25 @@ docs/task_metrics.md are made of.
 
 from __future__ import annotations
 
-import sys
+import argparse
 
 import numpy as np
 from lwbench_metrics.kiss import kiss_trajectory
 from lwbench_metrics.localization import ICP_PARAMS, track_odometry
 
-from lwbench.registry import get_registry
+from lwbench import open_dataset
 
 
 def main() -> None:
-    scene = sys.argv[1] if len(sys.argv) > 1 else "urban"
-    n = int(sys.argv[2]) if len(sys.argv) > 2 else 20
-    ds = get_registry().dataset("sim")(scene=scene, frames=n, seed=0)
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("scene", nargs="?", default="urban", help="a sim scene")
+    ap.add_argument("frames", nargs="?", type=int, default=20)
+    ap.add_argument("max_range", nargs="?", type=float, help="the kiss metric's max_range (default: the sensor's)")
+    args = ap.parse_args()
+    scene, n = args.scene, args.frames
+    ds = open_dataset("sim", {"scene": scene, "frames": n}, seed=0)
     frames = [ds[i] for i in range(n)]
-    max_range = float(sys.argv[3]) if len(sys.argv) > 3 else frames[0].sensor.max_range
+    max_range = args.max_range if args.max_range is not None else frames[0].sensor.max_range
     gt = np.stack([f.pose for f in frames])
     scans = [f.points for f in frames]
     kiss = kiss_trajectory(scans, gt[0], max_range)

@@ -15,10 +15,8 @@ import argparse
 import time
 
 import numpy as np
-from lwbench_metrics.task import LocalizationMetric
 
-from lwbench import SequenceEvaluation
-from lwbench.registry import get_registry
+from lwbench import SequenceEvaluation, codec_class, open_dataset, sequence_metric
 
 PROTOCOL = {"scene": "urban", "traversals": 2, "noise": 0.02, "distortion": True}
 # Measured with these defaults (frames=30, seeds 0-2): raw 1.36 +- 0.25 cm, random 1/12 2.76 +- 0.96 cm.
@@ -32,22 +30,21 @@ def main() -> None:
     ap.add_argument("--param", action="append", default=[], metavar="KEY=VALUE", help="a sim parameter")
     ap.add_argument("--icp", action="append", default=[], metavar="KEY=VALUE", help="an ICP setting (float)")
     args = ap.parse_args()
-    reg = get_registry()
     params = {**PROTOCOL, **dict(kv.split("=", 1) for kv in args.param), "frames": args.frames}
     print(f"sim {params}\n")
     print("| codec | seed | ATE rmse (m) | ATE mean (m) | rot (deg) | ICP failures | map share | s |")
     print("|---|---|---|---|---|---|---|---|")
     results: dict[str, list[float]] = {}
     for seed in args.seeds:
-        ds = reg.dataset("sim")(**{**params, "seed": seed})
+        ds = open_dataset("sim", {**params, "seed": seed})
         idx = list(range(len(ds)))
         frames = [ds[i] for i in idx]
         for name, p in CODECS:
-            cls = reg.codec(name)
+            cls = codec_class(name)
             codec = cls(**({**p, "seed": seed} if "seed" in {q.name for q in cls.all_params()} else p))
             decoded = [codec.decode(codec.encode(f)) for f in frames]
             t = time.time()
-            metric = LocalizationMetric()
+            metric = sequence_metric("localization")
             metric.settings = {**metric.settings, **{k: float(v) for k, v in (kv.split("=", 1) for kv in args.icp)}}
             out = metric.compute(SequenceEvaluation(ds, idx, decoded, name, p, seed))
             label = name + (f" 1/{round(1 / p['ratio'])}" if "ratio" in p else "")

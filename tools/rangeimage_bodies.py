@@ -16,31 +16,27 @@ import os
 import time
 from pathlib import Path
 
-from lwbench_plugins.rangeimage import RangeImageCodec
-from lwbench_plugins.rangeimage.bodies import BODIES
+from lwbench import CodecKind, Evaluation, Frame, codec_class, frame_metric, open_dataset
 
-from lwbench import Evaluation, Frame
-from lwbench.codec import CodecKind
-from lwbench.registry import get_registry
-from lwbench.run.plan import resolve_dataset
+RangeImageCodec = codec_class("rangeimage")
+#: Every entropy stage the codec declares (its ``body`` parameter's choices).
+BODIES = next(p.choices for p in RangeImageCodec.all_params() if p.name == "body")
 
 
 def first_frame(dataset: str, **params: object) -> Frame:
-    registry = get_registry()
-    spec = resolve_dataset(registry, dataset, params, 0)
-    return registry.dataset(spec.name)(**spec.params)[0]
+    return open_dataset(dataset, params)[0]
 
 
-def timed(codec: RangeImageCodec, frame: Frame) -> tuple[float, float, bytes]:
+def timed(codec, frame: Frame) -> tuple[float, float, bytes]:
     t0 = time.perf_counter()
     data = codec.encode(frame)
     t1 = time.perf_counter()
-    RangeImageCodec().decode(data)
+    RangeImageCodec().use_sensors([frame.sensor]).decode(data)
     return t1 - t0, time.perf_counter() - t1, data
 
 
 def rows(label: str, frame: Frame, pairs: int) -> list[str]:
-    metric = next(m for m in get_registry().frame_metric_instances() if m.name == "ranges")
+    metric = frame_metric("ranges")
     reference = RangeImageCodec(body="zstd")
     out = []
     for body in BODIES:
@@ -51,7 +47,7 @@ def rows(label: str, frame: Frame, pairs: int) -> list[str]:
             enc_z, dec_z, ref = timed(reference, frame)
             enc, dec, data = timed(codec, frame)
             best = [min(b, v) for b, v in zip(best, (enc_z, dec_z, enc, dec), strict=True)]
-        decoded = RangeImageCodec().decode(data)
+        decoded = RangeImageCodec().use_sensors([frame.sensor]).decode(data)
         m = metric.compute(Evaluation(frame, data, decoded, CodecKind.REPRESENTATION, {}))
         out.append(
             f"| {label} | {body} | {len(data):,} | {len(data) / len(ref):.3f} | {m['coverage']:.4f} "

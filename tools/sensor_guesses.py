@@ -6,7 +6,7 @@
     python tools/sensor_guesses.py table before.jsonl after.jsonl                # Markdown
 
 The scans are written once (``make``, with this checkout's generators) so that both versions of
-``lwbench.sensors.derive.derive_sensor`` see the same points: generated scans of each kind the issue
+``derive_sensor`` see the same points: generated scans of each kind the issue
 names (HDL-64E keyframes, OS1-64 raw and deskewed, a short-range PandarQT, a rotating 2-D laser,
 a sensor no preset describes) and the real samples, each shuffled and voxel-downsampled.
 ``derive`` uses only what both versions have (``derive_sensor(points, warn=False)``).
@@ -76,7 +76,10 @@ def make(out: Path, real: Path | None) -> None:
 def derive(folder: Path) -> None:
     import warnings
 
-    from lwbench.sensors.derive import derive_sensor
+    try:
+        from lwbench import derive_sensor  # public since issue 34
+    except ImportError:  # an older checkout (the "before" of issue 25)
+        from lwbench.derive import derive_sensor
 
     names = json.loads((folder / "names.json").read_text())
     for i, name in enumerate(names):

@@ -19,9 +19,8 @@ import argparse
 from pathlib import Path
 
 import numpy as np
-from lwbench_plugins.sim import SimDataset
 
-from lwbench import import_open3d, read_kitti_bin
+from lwbench import import_open3d, open_dataset, read_kitti_bin
 
 KITTI = "kitti00_frames0-1/000000.bin"
 KITTI_INTENSITY = "kitti_object_000008/000008.bin"  # has intensity; cropped to +-45 deg ahead
@@ -81,7 +80,7 @@ def main(argv: list[str] | None = None) -> None:
     print("|---|---|---|---|---|---|")
     if args.kitti.exists():
         print(_row(f"KITTI 00 `{args.kitti.name}` (real)", [scan_stats(read_kitti_bin(args.kitti).points)]))
-    urban = SimDataset(scene="urban", frames=0, cache=False)
+    urban = open_dataset("sim", {"scene": "urban", "frames": 0, "cache": False})
     idx = range(0, len(urban), args.every)
     print(_row(f"sim urban, HDL-64E, {len(idx)} scans", [scan_stats(urban.simulate(i).points) for i in idx]))
 
@@ -90,7 +89,8 @@ def main(argv: list[str] | None = None) -> None:
     print("|---|---|---|---|")
     for scene in ("tunnel", "indoor", "urban"):
         # The tunnel from outside its portal, like the paper's runs; the others from their start.
-        ds = SimDataset(scene=scene, frames=0, start=0.0 if scene == "tunnel" else None, cache=False)
+        ds = open_dataset("sim", {"scene": scene, "frames": 0, "start": 0.0 if scene == "tunnel" else None,
+                                  "cache": False})
         counts = np.array([len(ds.simulate(i).points) for i in range(0, len(ds), max(1, args.every // 2))])
         print(
             f"| {scene} | {ds.sensor.name} ({ds.sensor.n_rays:,} rays) | {len(counts)} of {len(ds)} | "

@@ -5,8 +5,8 @@ Usage: python tools/stream_table.py OUT/stream.json
 
 from __future__ import annotations
 
+import argparse
 import json
-import sys
 
 
 def main(path: str) -> None:
@@ -29,4 +29,6 @@ def main(path: str) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1])
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("stream_json", help="a stream.json from lwbench stream --out")
+    main(ap.parse_args().stream_json)

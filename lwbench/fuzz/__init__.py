@@ -19,8 +19,6 @@ from .campaign import FuzzReport, fuzz_codec, fuzz_frames, fuzz_sensors, paramet
 from .mutate import MAX_CASE_BYTES, Chooser, RandomChooser, assemble, mutate, split_payload
 from .server import CPU_LIMIT_S, MEMORY_LIMIT_MB, DecodeServer, Outcome, class_ref, shared_server
 
-_split = split_payload  # the name tools/fuzz_atheris.py and older scripts import
-
 __all__ = [
     "CPU_LIMIT_S",
     "Chooser",

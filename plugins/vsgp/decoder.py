@@ -67,7 +67,7 @@ RECIPROCAL_ENTRY = 0.25
 #: The work one decode may take, in kernel entries: 1.25 x ``lwbench.MAX_WORK``. Measured here
 #: (one thread, shared machine): 3-9 ns of CPU per unit on real payloads (0.39 s for 9.4e7
 #: units: KITTI 00 frame 0 at 16,000 inducing points); the hand-made worst payloads the bounds
-#: admit (tools/vsgp_fuzz.py --worst) stay near half a second -- under the fuzz contract's 1 s.
+#: admit (tools/vsgp_fuzz.py) stay near half a second -- under the fuzz contract's 1 s.
 WORK_BUDGET = 5 * MAX_WORK // 4
 #: Multiply-adds of a tile's Cholesky factorization and solve per work unit: measured 0.21 /
 #: 0.14 / 0.10 / 0.08 ns a multiply-add at M = 128 / 256 / 512 / 1024 (the per-tile units below
