@@ -83,6 +83,10 @@ def test_the_cli_puts_stores_and_bundles_on_one_board_rd_and_report(two_machines
     res = runner.invoke(app, ["leaderboard", *sources, "--columns", "bytes,encode_ms,encode_x"],
                         catch_exceptions=False, env={"COLUMNS": "200"})
     assert res.exit_code == 0 and "encode_x" in res.stdout
+    res = runner.invoke(app, ["rd", *sources, "--format", "json"], catch_exceptions=False)
+    assert res.exit_code == 0, res.output
+    rd = json.loads(res.stdout)
+    assert rd["distortion"] == "range_rmsd" and rd["rate"] == "bytes" and rd["datasets"]
     res = runner.invoke(app, ["report", *sources, "--out", str(tmp_path / "rep")], catch_exceptions=False)
     assert res.exit_code == 0, res.output
     page = (tmp_path / "rep" / "index.html").read_text()
