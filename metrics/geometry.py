@@ -9,8 +9,15 @@ and normals are cached per frame, so they are built once however many codecs are
   with p = the sensor's max range unless the ``peak`` parameter fixes it (published LiDAR
   results use a fixed peak so that figures compare across papers: e.g. 59.70 for KITTI in
   RENO's evaluation, 30,000 for 1 mm-quantized Ford -- ``--metric-param geometry.peak=59.70``);
-- D2 PSNR: the same with each error projected on the original's normal at the matched original
-  point (normals from Open3D, 12 nearest neighbours). Lossless reconstruction gives +inf.
+- D2 PSNR: the same with each error projected on a normal, exactly as MPEG's pc_error does it
+  (:mod:`.pc_error`: duplicate points merged, original -> decoded on the decoded point's normal
+  derived from the original's, decoded -> original on the original's; the original's normals
+  from Open3D, 12 nearest neighbours). D1 and D2 PSNR are computed on the clouds with duplicate
+  points merged, as pc_error does; Chamfer and Hausdorff on every point. Lossless reconstruction
+  gives +inf.
+
+Version 2: D2 follows pc_error's normals (version 1 projected both directions on the original
+point's own normal: 3 dB lower for codecs that drop points).
 """
 
 from __future__ import annotations
@@ -20,6 +27,8 @@ import math
 import numpy as np
 
 from lwbench import HIGHER, LOWER, Evaluation, FrameMetric, MetricId, Param, import_open3d, thread_budget
+
+from .pc_error import pc_errors, unique_points
 
 NORMAL_NEIGHBOURS = 12
 
@@ -38,6 +47,7 @@ def psnr(mse: float, peak: float) -> float:
 
 class GeometryMetric(FrameMetric):
     name = "geometry"
+    version = "2"
     order = 30
     ids = (
         MetricId("chamfer", "m", LOWER, default=True, role="distortion"),
@@ -59,14 +69,15 @@ class GeometryMetric(FrameMetric):
         from scipy.spatial import cKDTree  # here, not at import: `lwbench list` stays fast
 
         tree_p = ev.cached("original_kdtree", lambda: cKDTree(p))
-        normals = ev.cached("original_normals", lambda: _normals(p))
-        d_pq, j_pq = cKDTree(q).query(p, workers=thread_budget())
-        d_qp, i_qp = tree_p.query(q, workers=thread_budget())
-        # Point-to-plane errors, both along the original's normal at the original point.
-        e2_pq = np.einsum("ij,ij->i", p - q[j_pq], normals) ** 2
-        e2_qp = np.einsum("ij,ij->i", q - p[i_qp], normals[i_qp]) ** 2
-        d1 = min(psnr(float(np.mean(d_pq**2)), peak), psnr(float(np.mean(d_qp**2)), peak))
-        d2 = min(psnr(float(np.mean(e2_pq)), peak), psnr(float(np.mean(e2_qp)), peak))
+        d_pq, _ = cKDTree(q).query(p, workers=thread_budget())
+        d_qp, _ = tree_p.query(q, workers=thread_budget())
+        # PSNRs as pc_error: on the clouds with duplicates merged, D2 with its normals.
+        unique = ev.cached("original_unique", lambda: unique_points(p))
+        tree_u = ev.cached("original_unique_kdtree", lambda: cKDTree(unique))
+        normals = ev.cached("original_unique_normals", lambda: _normals(unique))
+        e = pc_errors(unique, normals, q, tree_u)
+        d1 = min(psnr(e.d1_ab, peak), psnr(e.d1_ba, peak))
+        d2 = min(psnr(e.d2_ab, peak), psnr(e.d2_ba, peak))
         return {
             "chamfer": float((d_pq.mean() + d_qp.mean()) / 2),
             "hausdorff": float(max(d_pq.max(), d_qp.max())),
