@@ -93,6 +93,15 @@ class Codec(abc.ABC):
         return ""
 
     @classmethod
+    def unavailable(cls) -> str:
+        """Why this codec cannot run on this machine, in one line that says what to install
+        (``""``: it can). A codec that wraps an external program (a reference encoder built
+        from source) still registers where the program is missing: ``lwbench list`` shows it
+        with this line, and its encode/decode raise ``MissingDependencyError`` saying the same.
+        The default: nothing missing."""
+        return ""
+
+    @classmethod
     def all_params(cls) -> tuple[Param, ...]:
         """Every parameter this codec accepts (its own plus its kind's)."""
         return cls.params
@@ -107,6 +116,7 @@ class Codec(abc.ABC):
             "supports_gpu": cls.supports_gpu,
             "in_default_run": cls.in_default_run,
             "needs": cls.needs,
+            "unavailable": cls.unavailable(),
             "params": [p.describe() for p in cls.all_params()],
         }
 

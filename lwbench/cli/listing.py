@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
+from rich.markup import escape
 from rich.table import Table
 
 from lwbench.errors import DataFormatError
@@ -68,7 +69,10 @@ def list_plugins(
         for col in ("name", "kind" if title == "Codecs" else "description", "parameters", "provider"):
             table.add_column(col)
         for it in items:
-            table.add_row(it["name"], it.get("kind", it["description"]), _params_text(it["params"]), it["provider"])
+            kind = it.get("kind", it["description"])
+            if it.get("unavailable"):
+                kind = f"{kind} [red](unavailable: {escape(it['unavailable'])})[/red]"
+            table.add_row(it["name"], kind, _params_text(it["params"]), it["provider"])
         console.print(table)
     table = Table(title="Metrics", title_justify="left")
     for col in ("name", "kind", "ids", "provider"):
