@@ -331,7 +331,7 @@ _SHIPPED = {
         timeout=600.0, sequence_metrics=False,
         datasets=[("sim", {}, 5, {"floor": {"sigma": 0.01}}),
                   (f"{_REAL}/kitti00_frames0-1", {"sensor": "hdl64e"}, 1, {})],
-        configs="every installed codec but oracle, at its defaults"),
+        configs="every installed codec but oracle and gpcc, at its defaults"),
     "vsgp_outdoor_rd.toml": dict(
         timeout=600.0, sequence_metrics=False,
         datasets=[(f"{_REAL}/kitti00_frames0-1", {}, 2, {}), (f"{_REAL}/ouster_os1-128_seq3", {}, 2, {}),
@@ -374,6 +374,9 @@ def test_a_shipped_run_file_reads_and_plans_what_it_says(path, tmp_path, monkeyp
         (str(d["name"]).replace(_REAL, str(real)), d.get("frames")) for d in doc["dataset"]]
     assert all("${" not in d.source for d in request.datasets)
     registry = get_registry()
+    lacking = {c["name"]: registry.codec(c["name"]).unavailable() for c in doc["codec"]}
+    if any(lacking.values()):  # a codec wrapping an external program (gpcc's tmc3): planning refuses it here
+        pytest.skip("; ".join(f"{n}: {why}" for n, why in lacking.items() if why))
     # Planning needs datasets that exist: the simulated ones (the real ones are paths, checked above).
     sims = tuple(d for d in request.datasets if d.source == "sim")
     plans = replace(request, datasets=sims).plans(registry)
@@ -394,7 +397,8 @@ def test_a_shipped_run_file_reads_and_plans_what_it_says(path, tmp_path, monkeyp
     assert got == [(s.replace(_REAL, str(real)), p, f, m) for s, p, f, m in want["datasets"]]
     configs = want["configs"]
     if isinstance(configs, str):  # every installed codec (oracle needs labels), each once at its defaults
-        configs = {name: 1 for name in registry.codecs if name != "oracle"}
+        # (gpcc, an external program's wrapper, has its own study: gpcc_rd.toml)
+        configs = {name: 1 for name in registry.codecs if name not in ("oracle", "gpcc")}
     for plan in plans:
         counts = {}
         for c in plan.configs:
