@@ -25,6 +25,13 @@ decoded point is within ``scale/2`` of its source point's. Modes:
   order; the CTC's ``sortInputByAzimuth`` re-sorts inputs that lost it, and costs 15 % more
   bytes on the simulated HDL-64E street at 1 cm). The bitstream carries the whole table: the
   decoder needs no sensor.
+- ``angular-lossy``: the MPEG CTC's lossy-geometry condition for spinning LiDARs (predictive
+  geometry with the angular mode, ``positionQuantisationEnabled=1``, no secondary cartesian
+  residual): each point is sent as (laser, azimuth, radius) with the radius quantized to
+  ``scale * 2**k`` and the azimuth to a turn / ``2**(a + 12)``, ``(k, a)`` the CTC's rate point
+  ``ctc_rate`` r01..r06 (:data:`CTC_ANGULAR_LOSSY`), on an input grid of ``scale`` (the CTC's
+  sources are on 1 mm: ``scale=0.001``). Every return is kept (no cells merge at 1 mm); the
+  error is along the beam and across it, not on a cartesian grid.
 
 :data:`CTC_SCALES` are the MPEG common test conditions' geometry rate points for the LiDAR
 (cat3-frame) sequences, r01 (coarsest) to r06, in metres per step: the octree CTC's
@@ -85,7 +92,11 @@ RECIPE = (
     "cmake --build build --target tmc3; or python3 .ci/build_tmc3.py SOURCE in an lwbench checkout) and set "
     f"{TMC3_ENV}=/path/to/tmc3 or put tmc3 on PATH"
 )
-MODES = ("octree", "predgeom", "angular")
+MODES = ("octree", "predgeom", "angular", "angular-lossy")
+#: The MPEG CTC's lossy-geometry predictive condition for spinning LiDARs (TMC13's
+#: cfg/cfg-predgeom.yaml), rate r01..r06 (``ctc_rate`` 1..6) -> (positionRadiusInvScaleLog2,
+#: positionAzimuthScaleLog2): the radius step is ``scale * 2**k``, the azimuth step a turn / 2**(a+12).
+CTC_ANGULAR_LOSSY = {1: (8, 7), 2: (7, 7), 3: (5, 8), 4: (4, 9), 5: (2, 11), 6: (1, 12)}
 #: The MPEG CTC LiDAR geometry rate points r01..r06 (metres per step), coarsest first: the octree
 #: CTC's positionQuantizationScale (1/512 .. 1/4) on the Ford sequences' 1 mm grid.
 CTC_SCALES = (0.512, 0.256, 0.064, 0.032, 0.008, 0.004)
@@ -222,22 +233,28 @@ def _write_ply(path: Path, grid: np.ndarray) -> None:
         fh.write(np.ascontiguousarray(grid, dtype="<f8").tobytes())  # tmc3 reads 4-byte positions as float32
 
 
-def _mode_args(mode: str, sensor: Any) -> list[str]:
+def _mode_args(mode: str, sensor: Any, ctc_rate: int = 6) -> list[str]:
     if mode == "octree":
         return ["--geomTreeType=0"]
     if mode == "predgeom":
         return ["--geomTreeType=1", "--predGeomSort=0"]
     # angular: predictive geometry + the LiDAR head model from the sensor
     if sensor is None:
-        raise ValueError("gpcc: mode=angular needs the frame's sensor model (laser elevations, azimuth step)")
+        raise ValueError(f"gpcc: mode={mode} needs the frame's sensor model (laser elevations, azimuth step)")
     elev = np.radians(np.asarray(sensor.elevations_deg, dtype=np.float64))
     if not 1 <= len(elev) <= 255:
         raise ValueError(f"gpcc: the angular mode takes 1 to 255 lasers, the sensor has {len(elev)}")
     per_turn = max(1, int(round(360.0 / float(sensor.azimuth_step_deg))))
-    scale_log2 = 12  # a turn is 2^(12 + 12) azimuth units
+    radius_log2, scale_log2 = (0, 12) if mode == "angular" else CTC_ANGULAR_LOSSY[int(ctc_rate)]
+    # a turn is 2^(scale_log2 + 12) azimuth units
     speed = max(1, min(1 << (scale_log2 + 12), int(round((1 << (scale_log2 + 12)) / per_turn))))
     n = len(elev)
-    return [
+    lossy = [] if mode == "angular" else [
+        "--positionQuantisationEnabled=1",
+        "--positionBaseQp=58",
+        "--secondaryResidualDisabled=1",
+    ]
+    return [*lossy,
         "--geomTreeType=1",
         "--predGeomSort=0",
         "--angularEnabled=1",
@@ -249,22 +266,24 @@ def _mode_args(mode: str, sensor: Any) -> list[str]:
         "--predGeomAzimuthSortPrecision=1024",
         f"--positionAzimuthScaleLog2={scale_log2}",
         f"--positionAzimuthSpeed={speed}",
-        "--positionRadiusInvScaleLog2=0",
+        f"--positionRadiusInvScaleLog2={radius_log2}",
         "--resRContextQphiThresholdPresentFlag=1",
         f"--resRContextQphiThreshold={int(1600 / speed)}",
     ]
 
 
-def encode_points(points: np.ndarray, mode: str, scale: float, sensor: Any = None) -> tuple[bytes, np.ndarray]:
+def encode_points(
+    points: np.ndarray, mode: str, scale: float, sensor: Any = None, ctc_rate: int = 6
+) -> tuple[bytes, np.ndarray]:
     """tmc3's bitstream of ``points`` (metres, sensor frame) on the grid of ``scale`` m in
-    ``mode``, and the encoder's reconstruction (grid coordinates, float64, tmc3's order; from
-    ``--reconstructedDataPath``)."""
+    ``mode`` (``angular-lossy``: at ``ctc_rate``), and the encoder's reconstruction (grid
+    coordinates, float64, tmc3's order; from ``--reconstructedDataPath``)."""
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     with np.errstate(over="ignore", invalid="ignore"):
         grid = np.round(pts / scale)
     if len(grid) and not (np.isfinite(grid).all() and np.abs(grid).max() < MAX_GRID):
         raise ValueError(f"gpcc: at scale {scale} m the scan's coordinates leave tmc3's grid (|q| < 2^24)")
-    args = _mode_args(mode, sensor)
+    args = _mode_args(mode, sensor, ctc_rate)
     with tempfile.TemporaryDirectory(prefix="lwbench-gpcc-") as tmp:
         _write_ply(Path(tmp) / "in.ply", grid)
         rc, tail = _run(
@@ -337,6 +356,8 @@ class GpccCodec(RepresentationCodec):
               choices=MODES),
         Param("scale", "float", 0.01, "position quantization step in metres (CTC rate points: CTC_SCALES)",
               low=0.001, high=10.0),
+        Param("ctc_rate", "int", 6, "mode=angular-lossy: the CTC's lossy predictive rate point r01..r06 (1..6)",
+              low=1, high=6),
     )
     needs = _Needs()  # type: ignore[assignment]
 
@@ -360,7 +381,8 @@ class GpccCodec(RepresentationCodec):
         if not len(pts):
             return self.make_payload(frame, meta, b"")
         lwbench.check_encodable(pts, self.name, slack=math.sqrt(3.0) * scale)
-        body, recon = encode_points(pts, mode, scale, frame.sensor if mode == "angular" else None)
+        sensor = frame.sensor if mode.startswith("angular") else None
+        body, recon = encode_points(pts, mode, scale, sensor, int(self.config["ctc_rate"]))
         meta["n"] = len(recon)
         return self.make_payload(frame, meta, body)
 
