@@ -58,8 +58,9 @@ def test_duplicates_are_merged_and_ties_averaged():
 def test_d2_equals_pc_errors_figures_on_kitti_frame_0(real_data):
     """pc_error (mpeg-pcc-dmetric) on KITTI 00 frame 0, peak 59.70, measured for issue 36:
     random 62.24 dB, voxel 77.31 dB (lwbench v1 read 58.98 and 74.18)."""
-    from lwbench import Evaluation, make_codec, open_dataset
     from lwbench_metrics.geometry import GeometryMetric
+
+    from lwbench import Evaluation, make_codec, open_dataset
 
     frame = open_dataset(real_data / "kitti00_frames0-1", {"sensor": "hdl64e"})[0]
     metric = GeometryMetric(peak=59.70)
