@@ -30,9 +30,10 @@ def lwbench_codecs():
 
 @hookimpl
 def lwbench_register_commands(cli) -> None:
-    from . import commands, diagnose, figures, table_command
+    from . import ceiling, commands, diagnose, figures, table_command
 
     commands.register(cli)
     diagnose.register(cli)
     table_command.register(cli)
     figures.register(cli)
+    ceiling.register(cli)
