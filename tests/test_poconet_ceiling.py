@@ -49,3 +49,42 @@ def test_the_command_fits_on_training_streets_and_scores_held_out_ones(tmp_path)
     test = result["test"]["urban:100"]
     assert 0.0 <= test["model_auc"] <= 1.0 and 0.0 < test["base_rate"] < 1.0
     assert set(test["single"]) <= set(FEATURES) and "| urban:100 |" in res.stdout
+
+
+def test_poconet_ranks_by_scores_from_a_file_and_refuses_foreign_or_damaged_ones(tmp_path, street4):
+    """``poconet score=file`` (the features' model control): the same rule, another model's
+    ranking -- here the height, so the kept non-ground points must be the high ones."""
+    from lwbench_plugins.poconet.codec import PocoNetSelector
+    from lwbench_plugins.poconet.diagnostics import ScoreFolder, write_score_folder
+
+    from lwbench import DataFormatError, ParameterError
+
+    ds = street4
+    heights = {ds[i].index: ds[i].points[:, 2].astype(np.float64) for i in range(len(ds))}
+    write_score_folder(tmp_path / "s", ds, heights, "height")
+    frame = ds[1]
+    by_height = PocoNetSelector(ratio=1 / 12, score="file", scores=str(tmp_path / "s"), cell=0.0)
+    by_random = PocoNetSelector(ratio=1 / 12, score="random", cell=0.0)
+    np.testing.assert_array_equal(by_height.scores(frame), heights[frame.index].astype(np.float32))
+    kept, control = by_height.select(frame), by_random.select(frame)
+    assert len(kept) == len(control) == round(len(frame) / 12)
+    z = frame.points[:, 2]
+    assert np.median(z[kept]) > np.median(z[control]) + 1.0  # ranked by the file, not at random
+    assert PocoNetSelector.missing({"score": "file", "scores": None}).startswith("set poconet.scores")
+    with pytest.raises(ParameterError, match="poconet.scores"):
+        PocoNetSelector(ratio=1 / 12, score="file").select(frame)
+    with pytest.raises(DataFormatError, match="for .* points"):
+        ScoreFolder(tmp_path / "s").scores(frame.index, len(frame) + 1)
+    (tmp_path / "s" / "scores" / f"{frame.index:06d}.f32").write_bytes(b"\0\0\0")
+    with pytest.raises(DataFormatError, match="damaged"):
+        ScoreFolder(tmp_path / "s").scores(frame.index, len(frame))
+    (tmp_path / "s" / "scores.json").write_text("{}")
+    with pytest.raises(DataFormatError, match="not a score index"):
+        ScoreFolder(tmp_path / "s")
+
+
+@pytest.fixture(scope="module")
+def street4():
+    from lwbench.registry import get_registry
+
+    return get_registry().dataset("sim")(scene="urban", frames=4, noise=0.02)

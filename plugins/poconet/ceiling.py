@@ -15,6 +15,10 @@ spread in height; density (the 16th neighbour's distance over the range, what th
 alone would give); and intensity when the scan has it.
 
     lwbench poconet-ceiling [--train urban:30-37] [--test urban:100-104] [--out DIR]
+        [--weights CHECKPOINT] [--write-scores DIR]
+
+``--write-scores DIR`` also writes the model's scores of every point of each held-out drive, so
+``lwbench poconet-table --scores DIR`` can rank by them under PocoNet's own selection rule.
 
 Requires scikit-learn (``pip install scikit-learn``; in ``lwbench[dev]``). No ``from __future__
 import annotations``: typer reads the annotations at run time.
@@ -82,10 +86,30 @@ def _drive_samples(drive: str, out: Path, frames: int, scans: int, points: int, 
     return np.concatenate(feats), np.concatenate(labels), (np.concatenate(scores) if scores else None)
 
 
+def write_scores(model, drive: str, frames: int, folder: Path) -> Path:
+    """The features' model's P(high) for every point of every scan of ``drive``, in the layout
+    ``poconet score=file`` reads (:class:`.diagnostics.ScoreFolder`): so a selector can rank by
+    the ceiling's scores under PocoNet's own rule, and the localization table can say whether
+    scores this good would beat the rule with random scores."""
+    from .diagnostics import write_score_folder
+    from .train import _sim
+
+    ds = _sim(drive, frames)
+    scores = {}
+    for i in range(len(ds)):
+        frame = ds[i]
+        rows = np.arange(len(frame))
+        scores[frame.index] = (model.predict_proba(point_features(frame, rows))[:, 1] if len(rows)
+                               else np.empty(0))
+    return write_score_folder(folder, ds, scores, f"lwbench poconet-ceiling features' model ({', '.join(FEATURES)})")
+
+
 def ceiling(train: list[str], test: list[str], out: Path, frames: int = 30, scans: int = 6, points: int = 8000,
-            seed: int = 0, network=None, say=print) -> dict:
+            seed: int = 0, network=None, say=print, scores_to: Path | None = None) -> dict:
     """Fit on ``train`` drives, score on each ``test`` drive: AUC and top-k precision of the
-    features' model, of the network (if given) and of each feature alone."""
+    features' model, of the network (if given) and of each feature alone. With ``scores_to``,
+    also write the model's scores of every point of each test drive to ``scores_to/SCENE-SEED``
+    (:func:`write_scores`)."""
     try:
         from sklearn.ensemble import HistGradientBoostingClassifier
     except ImportError:
@@ -114,6 +138,9 @@ def ceiling(train: list[str], test: list[str], out: Path, frames: int = 30, scan
             row["network_auc"] = roc_auc(st, pos)
             row["network_top_k"] = top_k_precision(st, pos, n_top)
         result["test"][drive] = row
+        if scores_to is not None:
+            where = write_scores(model, drive, frames, scores_to / drive.replace(":", "-"))
+            say(f"wrote the model's scores of {drive} to {where}")
         say(f"test {drive}: model AUC {row['model_auc']:.3f}" + (
             f", network {row['network_auc']:.3f}" if st is not None else ""))
     return result
@@ -148,7 +175,11 @@ def register(cli: typer.Typer) -> None:
         frames: Annotated[int, typer.Option(help="Scans per day of each drive.", min=4)] = 30,
         scans: Annotated[int, typer.Option(help="Scans sampled per day.", min=1)] = 6,
         points: Annotated[int, typer.Option(help="Non-ground points sampled per scan.", min=100)] = 8000,
-        network: Annotated[bool, typer.Option(help="Also score the shipped network on the same points.")] = True,
+        network: Annotated[bool, typer.Option(help="Also score the network on the same points.")] = True,
+        weights: Annotated[str, typer.Option(help="The network's weights: 'shipped' or a checkpoint.")] = "shipped",
+        write_scores_to: Annotated[Path | None, typer.Option(
+            "--write-scores", help="Also write the model's scores of every point of each held-out drive to "
+            "DIR/SCENE-SEED, for `poconet score=file scores=DIR/SCENE-SEED`.")] = None,
         out: Annotated[Path, typer.Option(help="Folder for the labels (reused when they match).")]
         = Path("poconet-ceiling"),
         seed: Annotated[int, typer.Option(help="Seed of the sampling and the model.")] = 0,
@@ -162,9 +193,9 @@ def register(cli: typer.Typer) -> None:
 
         from .train import parse_drives
 
-        net = make_codec("poconet") if network else None
+        net = make_codec("poconet", {"weights": weights}) if network else None
         result = ceiling(list(parse_drives(train)), list(parse_drives(test)), out, frames, scans, points, seed, net,
-                         say=lambda line: typer.echo(line, err=True))
+                         say=lambda line: typer.echo(line, err=True), scores_to=write_scores_to)
         print(_markdown(result))
         if json_out is not None:
             json_out.write_text(json.dumps(result, indent=1, default=float))

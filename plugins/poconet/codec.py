@@ -47,7 +47,7 @@ from lwbench import (
 )
 
 from .diagnostics import LABEL_HIGH as HIGH
-from .diagnostics import LabelFolder, noisy_classes, select_by_class, select_by_score
+from .diagnostics import LabelFolder, ScoreFolder, noisy_classes, select_by_class, select_by_score
 
 __all__ = [
     "PocoNetSelector",
@@ -122,12 +122,31 @@ class PocoNetSelector(SelectionCodec):
             "score",
             "str",
             "p_high",
-            "what ranks the non-ground points: the network's P(high), or 'random' "
-            "(a control: the same rule without the network's ranking)",
-            choices=("p_high", "random"),
+            "what ranks the non-ground points: the network's P(high), 'random' "
+            "(a control: the same rule without the network's ranking) or 'file' (another model's "
+            "scores from poconet.scores=DIR, e.g. the features' model of `lwbench poconet-ceiling`)",
+            choices=("p_high", "random", "file"),
         ),
+        Param("scores", "str", None, "folder of per-point scores (score=file)"),
         DEVICE_PARAM,
     )
+
+    def __init__(self, **params: Any) -> None:
+        super().__init__(**params)
+        self._score_folder: ScoreFolder | None = None
+
+    @classmethod
+    def missing(cls, config: dict[str, Any]) -> str:
+        if config.get("score") == "file" and not config.get("scores"):
+            return "set poconet.scores=DIR with score=file (scores written by `lwbench poconet-ceiling --write-scores`)"
+        return ""
+
+    def _file_scores(self, frame: Frame) -> np.ndarray:
+        if not self.config["scores"]:
+            raise ParameterError(f"poconet: {self.missing(self.config)}")
+        if self._score_folder is None:
+            self._score_folder = ScoreFolder(self.config["scores"])
+        return self._score_folder.scores(frame.index, len(frame))
 
     def _weights(self) -> str:
         w = self.config["weights"]
@@ -159,8 +178,11 @@ class PocoNetSelector(SelectionCodec):
         return probs[nearest]
 
     def scores(self, frame: Frame) -> np.ndarray:
-        """Per point the probability of high priority (what ``lwbench diagnose`` ranks). Right
-        after :meth:`select` of the same scan, the probabilities it computed (no second pass)."""
+        """Per point the probability of high priority (what ``lwbench diagnose`` ranks; with
+        ``score=file`` the file's scores). Right after :meth:`select` of the same scan, the
+        probabilities it computed (no second pass)."""
+        if self.config["score"] == "file":
+            return self._file_scores(frame)
         memo = getattr(self, "_last", None)
         if memo is not None and memo[0] is frame.points and memo[1] == frame.index:
             return memo[2][:, HIGH]
@@ -173,7 +195,9 @@ class PocoNetSelector(SelectionCodec):
         probs = self.probabilities(frame)
         self._last = (frame.points, frame.index, probs)
         rng = np.random.default_rng([self.config["seed"], frame.index, 1])
-        score = probs[:, HIGH] if self.config["score"] == "p_high" else rng.random(len(frame))
+        how = self.config["score"]
+        score = probs[:, HIGH] if how == "p_high" else self._file_scores(frame) if how == "file" else rng.random(
+            len(frame))
         return select_by_score(
             frame.points, probs.argmax(axis=1), score, k, rng, self.config["ground_share"], self.config["cell"]
         )

@@ -49,6 +49,8 @@ __all__ = [
     "HIGH",
     "GROUND",
     "LabelFolder",
+    "ScoreFolder",
+    "write_score_folder",
     "roc_auc",
     "top_k_precision",
     "kept_precision",
@@ -102,6 +104,60 @@ class LabelFolder:
         if len(lab) != n_points or lab.max(initial=0) > GROUND:
             raise DataFormatError(f"{self.root}: label file of frame {index} is damaged")
         return lab
+
+
+SCORE_FORMAT = "lwbench-point-scores"
+
+
+class ScoreFolder:
+    """Per-point scores of a sequence's frames from outside the codec (``poconet score=file``):
+    ``scores.json`` (format, the dataset's identity, each frame's point count, what wrote them)
+    and ``scores/NNNNNN.f32``, one little-endian float32 per point. A selector can then rank by
+    another model's scores under its own rule -- the control that says whether *better scores*
+    would move the localization error. Each read is checked like :class:`LabelFolder`'s."""
+
+    def __init__(self, root: str | Path) -> None:
+        self.root = Path(root)
+        path = self.root / "scores.json"
+        if not path.is_file():
+            raise DataFormatError(f"{self.root}: no scores.json (write scores with `lwbench poconet-ceiling "
+                                  "--write-scores DIR`)")
+        try:
+            self.meta: dict[str, Any] = json.loads(path.read_text())
+            if self.meta.get("format") != SCORE_FORMAT:
+                raise KeyError("format")
+            self._frames = {int(k): int(v) for k, v in self.meta["frames"].items()}
+        except (ValueError, KeyError, TypeError, AttributeError) as exc:
+            raise DataFormatError(f"{path}: not a score index ({type(exc).__name__}: {exc})") from None
+
+    def scores(self, index: int, n_points: int) -> np.ndarray:
+        """``(n_points,)`` float64 scores of frame ``index``."""
+        expected = self._frames.get(index)
+        if expected is None:
+            raise DataFormatError(f"{self.root}: no scores for frame {index}")
+        if expected != n_points:
+            raise DataFormatError(f"{self.root}: scores of frame {index} are for {expected} points, the scan has "
+                                  f"{n_points} (scores of another dataset?)")
+        path = self.root / "scores" / f"{index:06d}.f32"
+        got = np.fromfile(path, dtype="<f4") if path.is_file() else np.empty(0, "<f4")
+        if len(got) != n_points or not np.isfinite(got).all():
+            raise DataFormatError(f"{self.root}: score file of frame {index} is damaged")
+        return got.astype(np.float64)
+
+
+def write_score_folder(root: str | Path, dataset: Dataset, scores: dict[int, np.ndarray], source: str) -> Path:
+    """Write ``scores`` (frame index -> per-point scores) in :class:`ScoreFolder`'s layout."""
+    root = Path(root)
+    (root / "scores").mkdir(parents=True, exist_ok=True)
+    for i, s in scores.items():
+        s = np.asarray(s, dtype="<f4")
+        if not np.isfinite(s).all():
+            raise ParameterError(f"scores of frame {i} are not all finite")
+        s.tofile(root / "scores" / f"{i:06d}.f32")
+    meta = {"format": SCORE_FORMAT, "dataset": dataset.identity(), "source": source,
+            "frames": {str(i): int(len(s)) for i, s in scores.items()}}
+    (root / "scores.json").write_text(json.dumps(meta, indent=1))
+    return root
 
 
 def roc_auc(scores: np.ndarray, positive: np.ndarray) -> float:

@@ -16,7 +16,9 @@ counts from both drives, non-causal for the tracked one); then ``lwbench run`` a
 
 - raw (the paper's Origin), random, harris3d, iss, sift3d, poconet;
 - poconet's two controls: ``score=random`` (the same ground quota and spatial balance, random
-  order instead of P(high)) and ``cell=0`` (P(high) without spatial balance);
+  order instead of P(high)) and ``cell=0`` (P(high) without spatial balance); with ``--scores
+  DIR``, a third: ``score=file``, the same rule ranking by the scores of ``lwbench
+  poconet-ceiling``'s features' model (better than the network's: do better scores help?);
 - the oracle on each label definition, and -- at the ``--curve-ratios`` -- the noisy oracle on the
   ``mapping`` labels at ``--precisions`` with the oracle's rule (``class``) and with poconet's rule
   (``score``);
@@ -55,6 +57,7 @@ ORDER = (
     "poconet",
     "poconet, score=random (control)",
     "poconet, cell=0 (no balance)",
+    "poconet, score=features' model (control)",
     "oracle (mapping)",
     "oracle (all)",
 )
@@ -74,6 +77,7 @@ class Study:
     diagnose: bool
     from_store: bool
     precisions: tuple[float, ...]
+    scores: Path | None = None
 
 
 def lwbench(*args: str) -> str:
@@ -110,6 +114,8 @@ def row_name(entry: dict, labels: dict[str, str]) -> str:
     if codec == "poconet":
         if p.get("score") == "random":
             return "poconet, score=random (control)"
+        if p.get("score") == "file":
+            return "poconet, score=features' model (control)"
         return "poconet, cell=0 (no balance)" if p.get("cell") == 0 else "poconet"
     if codec == "oracle":
         which = next((k for k, v in labels.items() if Path(p["labels"]) == Path(v)), "?")
@@ -141,6 +147,11 @@ def one_seed(study: Study, seed: int, ratio: float, curve: bool) -> list[dict]:
     if study.controls and not study.from_store:
         lwbench(*common, "--codec", "poconet", "--param", f"poconet.ratio={ratio}",
                 "--param", f"poconet.weights={study.weights}", "--param", "poconet.cell=0")
+    if study.scores is not None and not study.from_store:
+        folder = study.scores / f"{study.scene}-{seed}"
+        lwbench(*common, "--codec", "poconet", "--param", f"poconet.ratio={ratio}",
+                "--param", f"poconet.weights={study.weights}", "--param", "poconet.score=file",
+                "--param", f"poconet.scores={folder}")
     if curve and not study.from_store:
         ps = ",".join(f"{p:g}" for p in study.precisions)
         for rule, precisions in (("class", ps), ("score", f"{ps},1")):  # the oracle's rule, poconet's
@@ -263,6 +274,9 @@ def register(cli: typer.Typer) -> None:
         scene: Annotated[str, typer.Option(help="The simulated scene.")] = PROTOCOL["scene"],
         sensor: Annotated[str, typer.Option(help="The simulated sensor.")] = "auto",
         json_out: Annotated[Path | None, typer.Option("--json", help="Also write every row here.")] = None,
+        scores: Annotated[Path | None, typer.Option(
+            help="Also rank by another model's scores under poconet's rule: DIR/SCENE-SEED folders written by "
+            "`lwbench poconet-ceiling --write-scores DIR` (the features' model control).")] = None,
     ) -> None:
         """PocoNet's Table I on held-out simulated drives (labels, runs, diagnostics as lwbench commands):
         ATE per seed, paired differences to random; Markdown."""
@@ -273,7 +287,7 @@ def register(cli: typer.Typer) -> None:
         if from_store and not store.exists():
             raise ParameterError(f"--from-store: {store} does not exist (run the seeds first, or name --store)")
         study = Study(frames, scene, sensor, weights, store, work, not no_controls, not no_diagnose, from_store,
-                      numbers(precisions, "--precisions"))
+                      numbers(precisions, "--precisions"), scores)
         work.mkdir(parents=True, exist_ok=True)
         everything = {}
         for ratio in budgets:
