@@ -88,3 +88,17 @@ def street4():
     from lwbench.registry import get_registry
 
     return get_registry().dataset("sim")(scene="urban", frames=4, noise=0.02)
+
+
+def test_features_within_a_sample_see_only_the_sample():
+    """``--context N``: neighbourhoods drawn from a sample of the scan, as the network's input is
+    -- a plane sampled sparsely is still a plane, but its points' neighbours lie further off."""
+    rng = np.random.default_rng(1)
+    plane = np.column_stack([rng.uniform(2, 10, 4000), rng.uniform(-4, 4, 4000), np.full(4000, -1.7)])
+    frame = _frame(plane)
+    among = np.sort(rng.choice(4000, 500, replace=False))
+    rows = among[:50]
+    dense, sparse = point_features(frame, rows), point_features(frame, rows, among)
+    j = FEATURES.index("density")
+    assert (sparse[:, j] > 1.5 * dense[:, j]).mean() > 0.9  # 8x fewer points: neighbours ~2.8x further
+    assert sparse[:, FEATURES.index("scattering")].max() < 1e-6  # still a plane

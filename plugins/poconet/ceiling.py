@@ -30,7 +30,7 @@ from typing import Annotated
 import numpy as np
 import typer
 
-from lwbench import Frame, MissingDependencyError
+from lwbench import Frame, MissingDependencyError, ParameterError
 
 from .diagnostics import GROUND, HIGH, roc_auc, top_k_precision
 from .labels import LabelSettings
@@ -40,14 +40,17 @@ FEATURES = ("range", "height", "linearity", "planarity", "scattering", "vertical
 NEIGHBOURS = 16
 
 
-def point_features(frame: Frame, rows: np.ndarray) -> np.ndarray:
+def point_features(frame: Frame, rows: np.ndarray, among: np.ndarray | None = None) -> np.ndarray:
     """``(len(rows), len(FEATURES))`` float64: the features of the points ``rows`` of ``frame``,
-    their neighbourhoods taken in the whole scan."""
+    their neighbourhoods taken in the whole scan, or only among the points ``among`` (a sample
+    of the scan: what a network that sees a sample can know)."""
     from scipy.spatial import cKDTree
 
     pts = np.asarray(frame.points, dtype=np.float64)
     q = pts[rows]
-    dist, idx = cKDTree(pts).query(q, k=NEIGHBOURS)
+    dist, idx = cKDTree(pts if among is None else pts[among]).query(q, k=NEIGHBOURS)
+    if among is not None:
+        idx = np.asarray(among)[idx]
     nb = pts[idx]  # (n, k, 3)
     centred = nb - nb.mean(axis=1, keepdims=True)
     cov = np.einsum("nki,nkj->nij", centred, centred) / NEIGHBOURS
@@ -64,9 +67,12 @@ def point_features(frame: Frame, rows: np.ndarray) -> np.ndarray:
     ])
 
 
-def _drive_samples(drive: str, out: Path, frames: int, scans: int, points: int, seed: int, network=None):
+def _drive_samples(drive: str, out: Path, frames: int, scans: int, points: int, seed: int, network=None,
+                   context: int | None = None):
     """Features, labels (high = 1 among non-ground points) and, with ``network``, its P(high),
-    of ``scans`` evenly spaced scans of each day of ``drive`` (``points`` sampled per scan)."""
+    of ``scans`` evenly spaced scans of each day of ``drive`` (``points`` sampled per scan).
+    With ``context``, each scan is first sampled to that many points (as the network's input
+    is), the points and their neighbourhoods drawn from the sample."""
     from .train import _labelled, _sim
 
     ds = _sim(drive, frames)
@@ -76,10 +82,14 @@ def _drive_samples(drive: str, out: Path, frames: int, scans: int, points: int, 
         for i in np.linspace(0, len(traversal) - 1, scans).round().astype(int):
             frame = ds[traversal[i]]
             lab, _ = store.read(frame.index, len(frame))
-            rest = np.flatnonzero(lab != GROUND)
             rng = np.random.default_rng([seed, day, int(i)])
+            among = None
+            if context is not None and context < len(frame):
+                among = np.sort(np.random.default_rng([seed, 9, day, int(i)]).choice(len(frame), context,
+                                                                                      replace=False))
+            rest = np.flatnonzero(lab != GROUND) if among is None else among[lab[among] != GROUND]
             rows = np.sort(rng.choice(rest, min(points, len(rest)), replace=False))
-            feats.append(point_features(frame, rows))
+            feats.append(point_features(frame, rows, among))
             labels.append((lab[rows] == HIGH).astype(np.int8))
             if network is not None:
                 scores.append(network.scores(frame)[rows])
@@ -105,7 +115,8 @@ def write_scores(model, drive: str, frames: int, folder: Path) -> Path:
 
 
 def ceiling(train: list[str], test: list[str], out: Path, frames: int = 30, scans: int = 6, points: int = 8000,
-            seed: int = 0, network=None, say=print, scores_to: Path | None = None) -> dict:
+            seed: int = 0, network=None, say=print, scores_to: Path | None = None,
+            context: int | None = None) -> dict:
     """Fit on ``train`` drives, score on each ``test`` drive: AUC and top-k precision of the
     features' model, of the network (if given) and of each feature alone. With ``scores_to``,
     also write the model's scores of every point of each test drive to ``scores_to/SCENE-SEED``
@@ -114,19 +125,21 @@ def ceiling(train: list[str], test: list[str], out: Path, frames: int = 30, scan
         from sklearn.ensemble import HistGradientBoostingClassifier
     except ImportError:
         raise MissingDependencyError("poconet-ceiling needs scikit-learn: pip install scikit-learn") from None
+    if scores_to is not None and context is not None:
+        raise ParameterError("poconet-ceiling: --write-scores takes the whole scan's features; leave out --context")
     xs, ys = [], []
     for drive in train:
-        x, y, _ = _drive_samples(drive, out, frames, scans, points, seed)
+        x, y, _ = _drive_samples(drive, out, frames, scans, points, seed, context=context)
         xs.append(x)
         ys.append(y)
         say(f"train {drive}: {len(y)} points, base rate {y.mean():.3f}")
     x, y = np.concatenate(xs), np.concatenate(ys)
     model = HistGradientBoostingClassifier(max_iter=300, learning_rate=0.1, max_leaf_nodes=31,
                                            early_stopping=True, random_state=seed).fit(x, y)
-    result = {"train": train, "features": list(FEATURES), "train_points": int(len(y)),
+    result = {"train": train, "features": list(FEATURES), "context": context, "train_points": int(len(y)),
               "train_auc": roc_auc(model.predict_proba(x)[:, 1], y.astype(bool)), "test": {}}
     for drive in test:
-        xt, yt, st = _drive_samples(drive, out, frames, scans, points, seed, network)
+        xt, yt, st = _drive_samples(drive, out, frames, scans, points, seed, network, context)
         pos = yt.astype(bool)
         n_top = int(pos.sum())
         p = model.predict_proba(xt)[:, 1]
@@ -156,6 +169,8 @@ def _markdown(result: dict) -> str:
                      f"{r['model_top_k']:.3f} | {net} | {best[0]} ({best[1]:.3f}) |")
     aucs = [r["model_auc"] for r in result["test"].values()]
     lines.append("")
+    if result.get("context"):
+        lines.append(f"features taken within a random sample of {result['context']:,} points of each scan")
     lines.append(f"features' model: train AUC {result['train_auc']:.3f} on {result['train_points']:,} points of "
                  f"{len(result['train'])} drives; held-out mean AUC {np.mean(aucs):.3f}")
     nets = [r["network_auc"] for r in result["test"].values() if "network_auc" in r]
@@ -183,6 +198,9 @@ def register(cli: typer.Typer) -> None:
         out: Annotated[Path, typer.Option(help="Folder for the labels (reused when they match).")]
         = Path("poconet-ceiling"),
         seed: Annotated[int, typer.Option(help="Seed of the sampling and the model.")] = 0,
+        context: Annotated[int | None, typer.Option(
+            help="Take each scan's features within a random sample of this many points (the network sees "
+            "16,384), not the whole scan.", min=NEIGHBOURS + 1)] = None,
         json_out: Annotated[Path | None, typer.Option("--json", help="Also write the result here.")] = None,
     ) -> None:
         """How predictable PocoNet's labels are from one scan: a tree model on hand-made per-point
@@ -195,7 +213,7 @@ def register(cli: typer.Typer) -> None:
 
         net = make_codec("poconet", {"weights": weights}) if network else None
         result = ceiling(list(parse_drives(train)), list(parse_drives(test)), out, frames, scans, points, seed, net,
-                         say=lambda line: typer.echo(line, err=True), scores_to=write_scores_to)
+                         say=lambda line: typer.echo(line, err=True), scores_to=write_scores_to, context=context)
         print(_markdown(result))
         if json_out is not None:
             json_out.write_text(json.dumps(result, indent=1, default=float))
