@@ -175,7 +175,7 @@ def _markdown(result: dict) -> str:
                  f"{len(result['train'])} drives; held-out mean AUC {np.mean(aucs):.3f}")
     nets = [r["network_auc"] for r in result["test"].values() if "network_auc" in r]
     if nets:
-        lines.append(f"network (shipped weights): held-out mean AUC {np.mean(nets):.3f}")
+        lines.append(f"network ({result.get('weights', 'shipped')} weights): held-out mean AUC {np.mean(nets):.3f}")
     return "\n".join(lines)
 
 
@@ -214,6 +214,8 @@ def register(cli: typer.Typer) -> None:
         net = make_codec("poconet", {"weights": weights}) if network else None
         result = ceiling(list(parse_drives(train)), list(parse_drives(test)), out, frames, scans, points, seed, net,
                          say=lambda line: typer.echo(line, err=True), scores_to=write_scores_to, context=context)
+        if network:
+            result["weights"] = weights
         print(_markdown(result))
         if json_out is not None:
             json_out.write_text(json.dumps(result, indent=1, default=float))
