@@ -38,6 +38,22 @@ def test_the_table_pairs_each_method_with_random_seed_by_seed():
     assert any(ln.startswith("Best keypoint selector: sift3d") for ln in text)
 
 
+def test_rankings_are_paired_with_poconet_s_random_score_control():
+    """Whether the scores earn their place: each ranking against the same rule with random order,
+    per seed, with a sign test (5 of 5 wins: p = 1/32)."""
+    from lwbench_plugins.poconet.table_command import CONTROL, table
+
+    seeds = [100, 101, 102, 103, 104]
+    rows = [_row(CONTROL, s, 0.02, "poconet") for s in seeds]
+    rows += [_row("poconet", s, 0.01, "poconet") for s in seeds]
+    rows += [_row("poconet, score=features' model (control)", s, 0.03 if s != 104 else 0.01, "poconet")
+             for s in seeds]
+    text = table(rows, seeds).splitlines()
+    assert "| poconet | -1.00 / -1.00 / -1.00 / -1.00 / -1.00 | -1.00 | 5/5 | 0.031 |" in text
+    feat = [ln for ln in text if ln.startswith("| poconet, score=features' model (control) | +1.00")]
+    assert feat and feat[0].endswith("| 1/5 | 0.969 |")
+
+
 def test_fractions_read_as_budgets():
     from lwbench_plugins.poconet.table_command import numbers
 

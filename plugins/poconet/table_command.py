@@ -225,6 +225,7 @@ def table(rows: list[dict], seeds: list[int]) -> str:
             f"Best keypoint selector: {best} ({100 * means[best]:.2f} ± {100 * stds[best]:.2f} cm); poconet "
             f"({100 * means['poconet']:.2f} cm) is {'within' if inside else 'outside'} its spread.",
         ]
+    lines += _against_control(ate, seeds)
     diag = [r for r in rows if r["row"] == "poconet diagnostics"]
     if diag:
         lines += [
@@ -237,6 +238,33 @@ def table(rows: list[dict], seeds: list[int]) -> str:
             cells = [np.mean([r[d][c] for r in diag]) for c in cols]
             lines.append(f"| {d} | " + " | ".join(f"{c:.3f}" for c in cells) + " |")
     return "\n".join(lines)
+
+
+CONTROL = "poconet, score=random (control)"
+
+
+def _against_control(ate: dict[str, dict], seeds: list[int]) -> list[str]:
+    """Markdown: each ranking's paired ATE difference to poconet's random-score control (the same
+    rule and budget, random order), the seeds it wins, and a one-sided sign test -- whether the
+    *scores* earn their place, which the difference to plain random cannot say."""
+    from scipy.stats import binomtest
+
+    control = ate.get(CONTROL, {})
+    out = []
+    for name in ("poconet", "poconet, score=features' model (control)"):
+        per = ate.get(name, {})
+        diffs = [per[s]["ate_rmse"] - control[s]["ate_rmse"] if s in per and s in control else None for s in seeds]
+        have = [d for d in diffs if d is not None]
+        if not have:
+            continue
+        if not out:
+            out = ["", f"| ranking under poconet's rule | − {CONTROL}, per seed (cm) | mean (cm) | beats the control | "
+                   "sign test p (one-sided) |", "|---|---|---|---|---|"]
+        wins = sum(d < 0 for d in have)
+        p = binomtest(wins, len(have), 0.5, alternative="greater").pvalue
+        out.append(f"| {name} | {' / '.join('–' if d is None else f'{100 * d:+.2f}' for d in diffs)} | "
+                   f"{100 * np.mean(have):+.2f} | {wins}/{len(have)} | {p:.3f} |")
+    return out
 
 
 def register(cli: typer.Typer) -> None:
