@@ -194,7 +194,7 @@ def register(cli: typer.Typer) -> None:
         weights: Annotated[str, typer.Option(help="The network's weights: 'shipped' or a checkpoint.")] = "shipped",
         write_scores_to: Annotated[Path | None, typer.Option(
             "--write-scores", help="Also write the model's scores of every point of each held-out drive to "
-            "DIR/SCENE-SEED, for `poconet score=file scores=DIR/SCENE-SEED`.")] = None,
+            "DIR/SCENE-SEED (read by poconet score=file).")] = None,
         out: Annotated[Path, typer.Option(help="Folder for the labels (reused when they match).")]
         = Path("poconet-ceiling"),
         seed: Annotated[int, typer.Option(help="Seed of the sampling and the model.")] = 0,
